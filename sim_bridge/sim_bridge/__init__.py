@@ -1,0 +1,1 @@
+"""sim_bridge: a closed-loop LiDAR traffic simulator with exact ground truth."""

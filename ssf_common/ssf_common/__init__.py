@@ -1,0 +1,1 @@
+"""SSF-PAN common layer: middleware, messages, point clouds, bags, config and the `ssf` command line."""

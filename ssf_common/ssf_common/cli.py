@@ -1,0 +1,76 @@
+"""The `ssf` command line: one entry point, with subcommands contributed by each package."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from dataclasses import dataclass
+from typing import Sequence
+
+from ssf_common.errors import SsfError
+
+# Each module has `register(groups: CommandGroups) -> None` that adds its commands; imports stay lazy
+# inside command functions so `ssf --help` is fast.
+COMMAND_MODULES = (
+    "ssf_common.commands",
+    "sim_bridge.cli",
+    "ssf_flow_node.cli",
+)
+
+
+@dataclass(frozen=True)
+class CommandGroups:
+    """Subparser groups that packages add their commands to."""
+
+    top: argparse._SubParsersAction
+    train: argparse._SubParsersAction
+    eval: argparse._SubParsersAction
+    bench: argparse._SubParsersAction
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The full `ssf` parser with every package's commands."""
+    parser = argparse.ArgumentParser(
+        prog="ssf",
+        description="SSF-PAN: semantic scene flow perception and navigation, as a ROS 2 node graph.",
+    )
+    top = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    groups = CommandGroups(
+        top=top,
+        train=_group(top, "train", "train the networks"),
+        eval=_group(top, "eval", "the paper's tables on simulator or recorded data, method beside method"),
+        bench=_group(top, "bench", "speed and memory figures (medians, JSON with --json)"),
+    )
+    for module_name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(module_name)
+        except ModuleNotFoundError as err:
+            if err.name and module_name.startswith(err.name):
+                continue  # package not part of this install
+            raise
+        module.register(groups)
+    return parser
+
+
+def _group(top: argparse._SubParsersAction, name: str, help_text: str) -> argparse._SubParsersAction:
+    parser = top.add_parser(name, help=help_text, description=help_text)
+    return parser.add_subparsers(dest=f"{name}_command", metavar="WHAT", required=True)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run one `ssf` command; user errors print one line and exit 2."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        result = args.func(args)
+    except SsfError as err:
+        print(f"ssf: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        return 130
+    return int(result or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

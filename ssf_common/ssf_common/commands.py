@@ -1,0 +1,74 @@
+"""`ssf` commands of ssf_common: launch, demo, record, bag, bench transport."""
+
+from __future__ import annotations
+
+import argparse
+
+from ssf_common.cli import CommandGroups
+
+
+def register(groups: CommandGroups) -> None:
+    """Add ssf_common's commands."""
+    _register_graph_commands(groups)
+    _register_bag_commands(groups)
+    _register_bench_commands(groups)
+
+
+def _register_graph_commands(groups: CommandGroups) -> None:
+    launch = groups.top.add_parser(
+        "launch",
+        help="start a graph of node processes from a YAML file and supervise them",
+        description="Start every node of GRAPH.yaml as its own process (as `ros2 run` would), prefix their "
+        "output with the node name, restart crashed nodes (up to max_restarts), and stop them all on "
+        "Ctrl-C or SIGTERM.",
+    )
+    launch.add_argument("graph", help="graph file: nodes: [{executable, name, parameters, remappings, ...}]")
+    launch.add_argument("--duration", type=float, default=None, help="stop after this many seconds")
+    launch.add_argument(
+        "-p", "--param", action="append", default=[], metavar="NAME:=VALUE", help="parameter given to every node"
+    )
+    launch.set_defaults(func=_launch)
+
+
+def _launch(args: argparse.Namespace) -> int:
+    from ssf_common.errors import ConfigError
+    from ssf_common.launch import Launcher, load_graph
+    from ssf_common.middleware.params import parse_value
+
+    overrides = {}
+    for item in args.param:
+        if ":=" not in item:
+            raise ConfigError(f"--param expects NAME:=VALUE, got {item!r}")
+        name, value = item.split(":=", 1)
+        overrides[name] = parse_value(value)
+    return Launcher(load_graph(args.graph, overrides)).run(args.duration)
+
+
+def _register_bag_commands(groups: CommandGroups) -> None:
+    from ssf_common.bags import info, play, record
+
+    record.add_parser(groups.top)
+    bag = groups.top.add_parser("bag", help="inspect and replay rosbag2 bags (MCAP or sqlite3)")
+    bag_commands = bag.add_subparsers(dest="bag_command", metavar="WHAT", required=True)
+    info.add_parser(bag_commands)
+    play.add_parser(bag_commands)
+
+
+def _register_bench_commands(groups: CommandGroups) -> None:
+    transport = groups.bench.add_parser(
+        "transport",
+        help="PointCloud2 serialisation and two-process latency over the middleware",
+        description="Serialise/deserialise 131072-point clouds, then publish 8192- and 131072-point clouds "
+        "at --rate for --duration seconds each from this process to a subscriber process, and report "
+        "medians, p99 latencies and the share received over best-effort QoS.",
+    )
+    transport.add_argument("--rate", type=float, default=10.0, help="publish rate in Hz (default 10)")
+    transport.add_argument("--duration", type=float, default=20.0, help="seconds per cloud size (default 20)")
+    transport.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
+    transport.set_defaults(func=_bench_transport)
+
+
+def _bench_transport(args: argparse.Namespace) -> int:
+    from ssf_common.bench_transport import bench_command
+
+    return bench_command(args)

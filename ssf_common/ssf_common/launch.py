@@ -1,0 +1,222 @@
+"""`ssf launch`: start a graph of node processes from YAML, prefix their output, restart crashes, stop cleanly."""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from importlib import metadata
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field
+
+from ssf_common import config as config_lib
+from ssf_common.config import Section
+from ssf_common.errors import ConfigError
+
+_PR_SET_PDEATHSIG = 1
+
+
+class NodeSpec(Section):
+    """One node process of a graph."""
+
+    executable: str
+    name: str | None = None
+    parameters: dict[str, Any] = Field(default_factory=dict)
+    params_file: str | None = None
+    remappings: dict[str, str] = Field(default_factory=dict)
+    arguments: list[str] = Field(default_factory=list)
+    respawn: bool = True
+    max_restarts: int = Field(default=3, ge=0)
+    required: bool = False  # when it exits for good, the whole graph stops
+    environment: dict[str, str] = Field(default_factory=dict)
+
+
+class GraphSpec(Section):
+    """A graph: node processes plus parameters every node gets."""
+
+    nodes: list[NodeSpec] = Field(min_length=1)
+    global_parameters: dict[str, Any] = Field(default_factory=dict)
+    stop_timeout_s: float = Field(default=5.0, gt=0)
+
+
+def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> GraphSpec:
+    """Read and validate a graph file; relative params files resolve against its folder."""
+    path = Path(path)
+    graph = config_lib.build(GraphSpec, config_lib.read_yaml(path), source=str(path))
+    nodes = []
+    for node in graph.nodes:
+        params_file = node.params_file
+        if params_file and not Path(params_file).is_absolute():
+            params_file = str((path.parent / params_file).resolve())
+        nodes.append(node.model_copy(update={"params_file": params_file}))
+    graph = graph.model_copy(update={"nodes": nodes})
+    if overrides:
+        graph = graph.model_copy(update={"global_parameters": {**graph.global_parameters, **overrides}})
+    return graph
+
+
+def _console_script(executable: str) -> tuple[str, str]:
+    """Module and function of an installed console script."""
+    for entry in metadata.entry_points(group="console_scripts"):
+        if entry.name == executable:
+            module, _, func = entry.value.partition(":")
+            return module, func or "main"
+    raise ConfigError(f"no executable named '{executable}' is installed (pip install the repository)")
+
+
+def command_line(node: NodeSpec, global_parameters: dict[str, Any]) -> list[str]:
+    """The argv that starts one node process, in ros2 run form."""
+    module, func = _console_script(node.executable.split("/")[-1])
+    argv = [sys.executable, "-P", "-c", f"import sys; from {module} import {func}; sys.exit({func}())"]
+    argv += list(node.arguments)
+    ros_args: list[str] = []
+    if node.name:
+        ros_args += ["-r", f"__node:={node.name}"]
+    for source, target in node.remappings.items():
+        ros_args += ["-r", f"{source}:={target}"]
+    if node.params_file:
+        ros_args += ["--params-file", node.params_file]
+    for name, value in {**global_parameters, **node.parameters}.items():
+        ros_args += ["-p", f"{name}:={_param_text(value)}"]
+    return argv + (["--ros-args", *ros_args] if ros_args else [])
+
+
+def _param_text(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_param_text(item) for item in value) + "]"
+    return str(value)
+
+
+def _die_with_parent() -> None:
+    """In the child: get SIGTERM if the launcher dies, so no node outlives it."""
+    try:
+        ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
+    except OSError:
+        pass
+
+
+@dataclass
+class ManagedProcess:
+    """A node process and its restart bookkeeping."""
+
+    spec: NodeSpec
+    label: str
+    argv: list[str]
+    process: subprocess.Popen | None = None
+    restarts: int = 0
+    finished: bool = False
+    exit_codes: list[int] = field(default_factory=list)
+
+
+class Launcher:
+    """Runs a graph until interrupted or a required node ends; never leaves orphans."""
+
+    def __init__(self, graph: GraphSpec, *, output: Any = None) -> None:
+        self.graph = graph
+        self.output = output or sys.stdout
+        self._stopping = threading.Event()
+        self._print_lock = threading.Lock()
+        self.managed = [
+            ManagedProcess(node, node.name or node.executable, command_line(node, graph.global_parameters))
+            for node in graph.nodes
+        ]
+
+    def start(self) -> None:
+        """Start every node process."""
+        for managed in self.managed:
+            self._spawn(managed)
+
+    def _spawn(self, managed: ManagedProcess) -> None:
+        env = {**os.environ, **managed.spec.environment, "PYTHONUNBUFFERED": "1"}
+        managed.process = subprocess.Popen(
+            managed.argv,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            stdin=subprocess.DEVNULL,
+            env=env,
+            preexec_fn=_die_with_parent,
+        )
+        self._say(managed.label, f"started (pid {managed.process.pid})")
+        threading.Thread(target=self._pump, args=(managed, managed.process), daemon=True).start()
+
+    def _pump(self, managed: ManagedProcess, process: subprocess.Popen) -> None:
+        assert process.stdout is not None
+        for raw in process.stdout:
+            self._say(managed.label, raw.decode(errors="replace").rstrip("\n"))
+
+    def _say(self, label: str, text: str) -> None:
+        with self._print_lock:
+            print(f"[{label}] {text}", file=self.output, flush=True)
+
+    def poll(self) -> bool:
+        """Restart crashed nodes; return False when the graph should stop."""
+        for managed in self.managed:
+            process = managed.process
+            if managed.finished or process is None or process.poll() is None:
+                continue
+            code = process.returncode
+            managed.exit_codes.append(code)
+            if self._stopping.is_set():
+                managed.finished = True
+                continue
+            if code != 0 and managed.spec.respawn and managed.restarts < managed.spec.max_restarts:
+                managed.restarts += 1
+                self._say(managed.label, f"exited with code {code}; restart {managed.restarts}/{managed.spec.max_restarts}")
+                time.sleep(min(0.5 * managed.restarts, 2.0))
+                self._spawn(managed)
+                continue
+            managed.finished = True
+            reason = "finished" if code == 0 else f"exited with code {code}"
+            self._say(managed.label, f"{reason}; not restarted")
+            if managed.spec.required:
+                return False
+        return not all(managed.finished for managed in self.managed)
+
+    def stop(self) -> None:
+        """SIGINT every node, then SIGTERM, then SIGKILL after the timeout; wait for all."""
+        self._stopping.set()
+        live = [m.process for m in self.managed if m.process is not None and m.process.poll() is None]
+        for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGKILL):
+            for process in live:
+                if process.poll() is None:
+                    process.send_signal(sig)
+            deadline = time.monotonic() + self.graph.stop_timeout_s
+            while time.monotonic() < deadline and any(p.poll() is None for p in live):
+                time.sleep(0.05)
+            live = [p for p in live if p.poll() is None]
+            if not live:
+                break
+        for managed in self.managed:
+            if managed.process is not None:
+                managed.process.wait()
+
+    def run(self, duration_s: float | None = None) -> int:
+        """Start, supervise until Ctrl-C/SIGTERM, a required node's end or the duration; then stop all."""
+        stop_requested = threading.Event()
+
+        def on_signal(_signum: int, _frame: object) -> None:
+            stop_requested.set()
+
+        previous = {sig: signal.signal(sig, on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
+        deadline = None if duration_s is None else time.monotonic() + duration_s
+        try:
+            self.start()
+            while not stop_requested.is_set():
+                if not self.poll() or (deadline is not None and time.monotonic() >= deadline):
+                    break
+                time.sleep(0.1)
+        finally:
+            self.stop()
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+        failed = [m for m in self.managed if m.spec.required and m.exit_codes and m.exit_codes[-1] not in (0, -2)]
+        return 1 if failed else 0

@@ -1,0 +1,404 @@
+"""An rclpy-shaped node whose transport is a pluggable backend and whose callbacks run on one thread."""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import os
+import queue
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from pydantic import BaseModel
+
+from ssf_common import config as config_lib
+from ssf_common import messages
+from ssf_common.errors import ConfigError, MessageError, SsfError
+from ssf_common.middleware.params import Parameter, coerce, parse_ros_args
+from ssf_common.middleware.qos import QOS_CLOCK, QOS_DEFAULT, QoS
+
+ModelT = TypeVar("ModelT", bound=BaseModel)
+
+_LEVELS = {"debug": 10, "info": 20, "warn": 30, "warning": 30, "error": 40, "fatal": 50}
+
+
+class Logger:
+    """ROS-style console logger: `[LEVEL] [time] [node]: message` on stderr."""
+
+    def __init__(self, name: str, level: str | None = None) -> None:
+        self.name = name
+        self.level = _LEVELS.get((level or os.environ.get("SSF_LOG_LEVEL", "info")).lower(), 20)
+
+    def _log(self, level: str, text: str) -> None:
+        if _LEVELS[level] >= self.level:
+            print(f"[{level.upper()}] [{time.time():.6f}] [{self.name}]: {text}", file=sys.stderr, flush=True)
+
+    def debug(self, text: str) -> None:
+        """Log at debug level."""
+        self._log("debug", text)
+
+    def info(self, text: str) -> None:
+        """Log at info level."""
+        self._log("info", text)
+
+    def warning(self, text: str) -> None:
+        """Log at warning level."""
+        self._log("warn", text)
+
+    warn = warning
+
+    def error(self, text: str) -> None:
+        """Log at error level."""
+        self._log("error", text)
+
+    def fatal(self, text: str) -> None:
+        """Log at fatal level."""
+        self._log("fatal", text)
+
+
+class Clock:
+    """Node clock: wall time, or the latest /clock value when use_sim_time is set."""
+
+    def __init__(self) -> None:
+        self.use_sim_time = False
+        self._sim_ns = 0
+
+    def now_ns(self) -> int:
+        """Current time in nanoseconds (0 in sim time until the first /clock)."""
+        return self._sim_ns if self.use_sim_time else time.time_ns()
+
+    def now_s(self) -> float:
+        """Current time in seconds."""
+        return self.now_ns() * 1e-9
+
+    def set_sim_time(self, nanoseconds: int) -> None:
+        """Advance sim time (from /clock)."""
+        self._sim_ns = nanoseconds
+
+
+@dataclass(order=True)
+class Timer:
+    """A periodic callback on the node's clock."""
+
+    due: float
+    seq: int
+    period: float = field(compare=False)
+    callback: Callable[[], None] = field(compare=False)
+    cancelled: bool = field(default=False, compare=False)
+
+    def cancel(self) -> None:
+        """Stop the timer."""
+        self.cancelled = True
+
+
+class Publisher:
+    """Publishes messages (serialised once, here) or ready-made CDR bytes."""
+
+    def __init__(self, transport: Any, type_name: str, topic: str) -> None:
+        self._transport = transport
+        self.msg_type = type_name
+        self.topic_name = topic
+
+    def publish(self, msg: Any) -> None:
+        """Serialise and publish one message."""
+        self._transport.publish_raw(messages.serialize(msg, self.msg_type))
+
+    def publish_raw(self, cdr: bytes | memoryview) -> None:
+        """Publish CDR bytes as they are (bag replay)."""
+        self._transport.publish_raw(cdr)
+
+    def get_subscription_count(self) -> int:
+        """Matched subscriptions."""
+        return self._transport.matched_count()
+
+
+class Subscription:
+    """Delivers decoded messages (or raw CDR) of one topic to a callback on the node's thread."""
+
+    def __init__(self, node: "Node", type_name: str, topic: str, callback: Callable[[Any], None], raw: bool) -> None:
+        self._node = node
+        self.msg_type = type_name
+        self.topic_name = topic
+        self._callback = callback
+        self._raw = raw
+        self.transport: Any = None
+        self.dropped = 0
+
+    def deliver(self, cdr: bytes) -> None:
+        """Decode one sample and run the callback; a bad message is logged and dropped."""
+        try:
+            self._callback(cdr if self._raw else messages.deserialize(cdr, self.msg_type))
+        except SsfError as err:
+            self.dropped += 1
+            self._node.get_logger().error(f"dropped a message on {self.topic_name}: {err}")
+        except Exception as err:  # noqa: BLE001 - a node keeps running whatever one message does
+            self.dropped += 1
+            self._node.get_logger().error(
+                f"callback for {self.topic_name} failed on one message ({type(err).__name__}: {err}); dropped it"
+            )
+
+    def get_publisher_count(self) -> int:
+        """Matched publishers."""
+        return self.transport.matched_count()
+
+
+def selected_backend() -> str:
+    """'rclpy' or 'dds', from SSF_MIDDLEWARE=auto|rclpy|dds (auto: rclpy when it imports)."""
+    choice = os.environ.get("SSF_MIDDLEWARE", "auto").lower()
+    if choice not in ("auto", "rclpy", "dds"):
+        raise ConfigError(f"SSF_MIDDLEWARE must be auto, rclpy or dds, got {choice!r}")
+    if choice == "dds":
+        return "dds"
+    try:
+        import rclpy  # noqa: F401
+    except ImportError:
+        if choice == "rclpy":
+            raise ConfigError("SSF_MIDDLEWARE=rclpy but rclpy does not import: source a ROS 2 Jazzy setup") from None
+        return "dds"
+    return "rclpy"
+
+
+def make_backend(node_name: str, namespace: str) -> Any:
+    """The transport of one node, as selected_backend() says."""
+    if selected_backend() == "rclpy":
+        from ssf_common.middleware.rclpy_backend import RclpyBackend
+
+        return RclpyBackend(node_name, namespace)
+    from ssf_common.middleware.embedded import EmbeddedBackend
+
+    return EmbeddedBackend()
+
+
+class Node:
+    """Base class of every node: parameters, config, logger, clock, pub/sub, timers, spin."""
+
+    def __init__(self, node_name: str, *, argv: list[str] | None = None, namespace: str = "") -> None:
+        ros_args = parse_ros_args(list(argv or []), node_name)
+        self._name = ros_args.node_name or node_name
+        self._namespace = "/" + (ros_args.namespace or namespace).strip("/")
+        self._remappings = ros_args.remappings
+        self._overrides = ros_args.parameters
+        self.unparsed_args = ros_args.unparsed
+        self._parameters: dict[str, Parameter] = {}
+        self._logger = Logger(self._name)
+        self._clock = Clock()
+        self._events: queue.SimpleQueue[Any] = queue.SimpleQueue()
+        self._timers: list[Timer] = []
+        self._timer_seq = itertools.count()
+        self._subscriptions: list[Subscription] = []
+        self._publishers: list[Publisher] = []
+        self._stop = threading.Event()
+        self._backend = make_backend(self._name, self._namespace)
+        if self.declare_parameter("use_sim_time", False).value:
+            self._clock.use_sim_time = True
+            self.create_subscription("rosgraph_msgs/msg/Clock", "/clock", self._on_clock, QOS_CLOCK)
+
+    # Identity and helpers
+
+    def get_name(self) -> str:
+        """Node name (after a __node remap)."""
+        return self._name
+
+    def get_namespace(self) -> str:
+        """Node namespace."""
+        return self._namespace
+
+    def get_logger(self) -> Logger:
+        """The node's logger."""
+        return self._logger
+
+    def get_clock(self) -> Clock:
+        """The node's clock (sim time when use_sim_time)."""
+        return self._clock
+
+    @property
+    def backend_name(self) -> str:
+        """'dds' or 'rclpy'."""
+        return self._backend.name
+
+    def resolve_topic(self, topic: str) -> str:
+        """Apply remappings and the namespace to a topic name."""
+        topic = self._remappings.get(topic, topic)
+        resolved = topic if topic.startswith("/") else f"{self._namespace.rstrip('/')}/{topic}"
+        return self._remappings.get(resolved, resolved)
+
+    # Parameters and config
+
+    def declare_parameter(self, name: str, default: Any = None) -> Parameter:
+        """Declare a parameter; an override from --ros-args or --params-file wins if its type fits."""
+        value = self._overrides[name] if name in self._overrides else default
+        parameter = Parameter(name, coerce(name, value, default))
+        self._parameters[name] = parameter
+        return parameter
+
+    def get_parameter(self, name: str) -> Parameter:
+        """A declared parameter."""
+        try:
+            return self._parameters[name]
+        except KeyError:
+            raise ConfigError(f"parameter '{name}' was not declared") from None
+
+    def has_parameter(self, name: str) -> bool:
+        """Whether the parameter is declared."""
+        return name in self._parameters
+
+    def declare_config(self, model: type[ModelT], prefix: str = "") -> ModelT:
+        """Declare every field of a config model as a dotted parameter and return the validated model."""
+        defaults = config_lib.flatten(model().model_dump(mode="json"))
+        values = {}
+        for name, default in defaults.items():
+            values[name] = self.declare_parameter(f"{prefix}{name}", default).value
+        unknown = [key for key in self._overrides if key.startswith(prefix) and key[len(prefix):] not in defaults]
+        unknown = [key for key in unknown if key != "use_sim_time" and key not in self._parameters]
+        if unknown:
+            raise ConfigError(f"unknown parameter '{unknown[0]}' for node {self._name}")
+        return config_lib.build(model, values, source=f"parameters of {self._name}")
+
+    # Communication
+
+    def create_publisher(self, msg_type: type | str, topic: str, qos: QoS = QOS_DEFAULT) -> Publisher:
+        """A publisher of one message type on one topic."""
+        type_name = _type_name(msg_type)
+        topic = self.resolve_topic(topic)
+        publisher = Publisher(self._backend.create_publisher(type_name, topic, qos), type_name, topic)
+        self._publishers.append(publisher)
+        return publisher
+
+    def create_subscription(
+        self,
+        msg_type: type | str,
+        topic: str,
+        callback: Callable[[Any], None],
+        qos: QoS = QOS_DEFAULT,
+        *,
+        raw: bool = False,
+    ) -> Subscription:
+        """Subscribe; callback gets the message (or CDR bytes with raw=True) on the node's thread."""
+        type_name = _type_name(msg_type)
+        topic = self.resolve_topic(topic)
+        subscription = Subscription(self, type_name, topic, callback, raw)
+        subscription.transport = self._backend.create_subscription(
+            type_name, topic, qos, subscription.deliver, self._events.put
+        )
+        self._subscriptions.append(subscription)
+        return subscription
+
+    def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
+        """Call back every period_s seconds of the node's clock."""
+        if period_s <= 0:
+            raise ConfigError(f"timer period must be positive, got {period_s}")
+        timer = Timer(self._clock.now_s() + period_s, next(self._timer_seq), period_s, callback)
+        heapq.heappush(self._timers, timer)
+        self._events.put(None)  # wake the executor to consider the new deadline
+        return timer
+
+    def get_topic_names_and_types(self) -> list[tuple[str, list[str]]]:
+        """Topics currently offered on the graph."""
+        return self._backend.topic_names_and_types()
+
+    def call_soon(self, callback: Callable[[], None]) -> None:
+        """Run a callback on the node's thread (thread-safe)."""
+        self._events.put(callback)
+
+    # Executor
+
+    def spin_once(self, timeout_s: float = 0.1) -> None:
+        """Handle one event or due timer, waiting at most timeout_s."""
+        wait = min(timeout_s, self._time_to_next_timer())
+        try:
+            event = self._events.get(timeout=max(wait, 0.0))
+        except queue.Empty:
+            event = None
+        if event is not None:
+            self._handle(event)
+        self._run_due_timers()
+
+    def spin(self) -> None:
+        """Process events until request_shutdown()."""
+        while not self._stop.is_set():
+            self.spin_once(0.5)
+
+    def spin_in_thread(self) -> threading.Thread:
+        """Spin on a daemon thread (tests, tools)."""
+        thread = threading.Thread(target=self.spin, name=f"{self._name}-executor", daemon=True)
+        thread.start()
+        return thread
+
+    def request_shutdown(self) -> None:
+        """Make spin() return (thread- and signal-safe)."""
+        self._stop.set()
+        self._events.put(None)
+
+    @property
+    def shutdown_requested(self) -> bool:
+        """Whether request_shutdown() was called."""
+        return self._stop.is_set()
+
+    def on_shutdown(self) -> None:
+        """Hook for subclasses: flush and close what they own (runs before the node is destroyed)."""
+
+    def destroy_node(self) -> None:
+        """Release every publisher, subscription and timer."""
+        for subscription in self._subscriptions:
+            subscription.transport.destroy()
+        for publisher in self._publishers:
+            publisher._transport.destroy()
+        self._subscriptions.clear()
+        self._publishers.clear()
+        self._timers.clear()
+        destroy = getattr(self._backend, "destroy_node", None)
+        if destroy is not None:
+            destroy()
+
+    def _handle(self, event: Any) -> None:
+        if event is None:
+            return
+        if callable(event):
+            event()
+        else:
+            event.drain()
+
+    def _time_to_next_timer(self) -> float:
+        while self._timers and self._timers[0].cancelled:
+            heapq.heappop(self._timers)
+        if not self._timers:
+            return 0.5
+        remaining = self._timers[0].due - self._clock.now_s()
+        if self._clock.use_sim_time:
+            return min(max(remaining, 0.0), 0.005)  # sim time advances with /clock, poll briefly
+        return max(remaining, 0.0)
+
+    def _run_due_timers(self) -> None:
+        now = self._clock.now_s()
+        while self._timers and (self._timers[0].cancelled or self._timers[0].due <= now):
+            timer = heapq.heappop(self._timers)
+            if timer.cancelled:
+                continue
+            timer.due += timer.period
+            if timer.due <= now:  # fell behind: skip missed periods rather than bursting
+                timer.due = now + timer.period
+            heapq.heappush(self._timers, timer)
+            try:
+                timer.callback()
+            except SsfError as err:
+                self._logger.error(str(err))
+            except Exception as err:  # noqa: BLE001 - keep the node alive
+                self._logger.error(f"timer callback failed ({type(err).__name__}: {err})")
+
+    def _on_clock(self, msg: Any) -> None:
+        self._clock.set_sim_time(messages.stamp_ns(msg.clock))
+
+
+def _type_name(msg_type: type | str) -> str:
+    if isinstance(msg_type, str):
+        name = messages.normalize_type_name(msg_type)
+        messages.msg_type(name)  # fail early on unknown types
+        return name
+    name = getattr(msg_type, "__msgtype__", None)
+    if name is None:
+        raise MessageError(f"{msg_type!r} is not a message type")
+    return name

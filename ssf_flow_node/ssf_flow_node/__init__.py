@@ -1,0 +1,1 @@
+"""ssf_flow_node: scene flow estimation between consecutive LiDAR scans."""

@@ -1,0 +1,30 @@
+"""ament_python package ssf_planner_node (colcon build on ROS 2 Jazzy; elsewhere pip install the repository root)."""
+
+from glob import glob
+
+from setuptools import find_packages, setup
+
+PACKAGE = "ssf_planner_node"
+
+setup(
+    name=PACKAGE,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    include_package_data=True,
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
+        ("share/" + PACKAGE, ["package.xml"]),
+        ("share/" + PACKAGE + "/launch", glob("launch/*.launch.py")),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="SSF-PAN developers",
+    maintainer_email="dev@ssf-pan.invalid",
+    description="RDA-style MPC planner that avoids moving obstacles.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "ssf_planner_node = ssf_planner_node.node:main",
+        ],
+    },
+)

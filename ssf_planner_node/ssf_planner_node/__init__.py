@@ -1,0 +1,1 @@
+"""ssf_planner_node: RDA-style MPC that avoids moving obstacles."""

@@ -1,0 +1,272 @@
+"""Middleware: parameters, config, pub/sub on the embedded backend, ROS 2 wire compatibility, sim time."""
+
+import subprocess
+import sys
+import textwrap
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pytest
+from cyclonedds.idl import IdlStruct
+from cyclonedds.idl import types as t
+from pydantic import Field
+
+from ssf_common import messages
+from ssf_common.config import Section
+from ssf_common.errors import ConfigError, MessageError
+from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA, Node
+from ssf_common.middleware.params import parse_ros_args
+from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
+
+
+def wait_until(predicate, timeout_s: float = 10.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.02)
+    return predicate()
+
+
+class Lidar(Section):
+    rows: int = Field(default=64, gt=0)
+    range_m: float = 100.0
+
+
+class SensorConfig(Section):
+    lidar: Lidar = Lidar()
+    frame_id: str = "lidar"
+
+
+# The ROS 2 types as anyone would write them from the .msg files: plain Cyclone IDL, no project code.
+@dataclass
+class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
+    sec: t.int32
+    nanosec: t.uint32
+
+@dataclass
+class Header_(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
+    stamp: Time_
+    frame_id: str
+
+@dataclass
+class PointField_(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
+    name: str
+    offset: t.uint32
+    datatype: t.uint8
+    count: t.uint32
+
+@dataclass
+class PointCloud2_(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
+    header: Header_
+    height: t.uint32
+    width: t.uint32
+    fields: t.sequence[PointField_]
+    is_bigendian: bool
+    point_step: t.uint32
+    row_step: t.uint32
+    data: t.sequence[t.uint8]
+    is_dense: bool
+
+
+@dataclass
+class Inbox:
+    items: list = field(default_factory=list)
+
+    def __call__(self, item) -> None:
+        self.items.append(item)
+
+
+@pytest.fixture
+def nodes():
+    made: list[Node] = []
+
+    def make(name: str, argv: list[str] | None = None) -> Node:
+        node = Node(name, argv=argv)
+        made.append(node)
+        return node
+
+    yield make
+    for node in made:
+        node.request_shutdown()
+        node.destroy_node()
+
+
+def test_ros_args_parameters_remaps_and_params_file(tmp_path):
+    params = tmp_path / "params.yaml"
+    params.write_text("/**:\n  ros__parameters:\n    rate: 5.0\nmy_node:\n  ros__parameters:\n    lidar:\n      rows: 32\n")
+    args = parse_ros_args(
+        ["positional", "--ros-args", "-p", "rate:=7", "--params-file", str(params), "-r", "a:=/b", "-r", "__node:=renamed"],
+        "my_node",
+    )
+    assert args.unparsed == ["positional"]
+    assert args.node_name == "renamed"
+    assert args.remappings == {"a": "/b"}
+    assert args.parameters["rate"] == 7  # -p wins over the file
+    # the file section 'my_node' no longer matches the renamed node, the wildcard still does
+    assert "lidar.rows" not in args.parameters
+    assert parse_ros_args(["--ros-args", "--params-file", str(params)], "my_node").parameters["lidar.rows"] == 32
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--ros-args", "-p", "rate"], "NAME:=VALUE"),
+        (["--ros-args", "--bogus"], "unknown ROS argument"),
+        (["--ros-args", "--params-file", "/nonexistent/params.yaml"], "no such file"),
+    ],
+)
+def test_bad_ros_args_are_one_line_errors(argv, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_ros_args(argv, "n")
+
+
+def test_declare_config_uses_dotted_parameter_names(nodes):
+    node = nodes("configured", ["--ros-args", "-p", "lidar.rows:=32", "-p", "lidar.range_m:=120"])
+    config = node.declare_config(SensorConfig)
+    assert config.lidar.rows == 32 and config.lidar.range_m == 120.0 and config.frame_id == "lidar"
+    assert node.get_parameter("lidar.rows").value == 32
+
+
+@pytest.mark.parametrize(
+    "override, message",
+    [("lidar.rows:=-1", "lidar.rows"), ("lidar.rows:=abc", "lidar.rows"), ("lidar.colour:=1", "unknown parameter")],
+)
+def test_bad_parameters_name_the_field(nodes, override, message):
+    node = nodes("configured", ["--ros-args", "-p", override])
+    with pytest.raises(ConfigError, match=message):
+        node.declare_config(SensorConfig)
+
+
+@pytest.mark.parametrize("qos", [QOS_DEFAULT, QOS_SENSOR_DATA, QOS_LATCHED], ids=["default", "sensor", "latched"])
+def test_publish_subscribe_round_trip_keeps_every_field(nodes, qos):
+    talker, listener = nodes("talker"), nodes("listener")
+    inbox = Inbox()
+    listener.create_subscription("sensor_msgs/msg/PointCloud2", "/test/points", inbox, qos)
+    publisher = talker.create_publisher("sensor_msgs/msg/PointCloud2", "/test/points", qos)
+    listener.spin_in_thread()
+    assert wait_until(lambda: publisher.get_subscription_count() > 0)
+    xyz = np.random.default_rng(1).normal(size=(1000, 3)).astype(np.float32)
+    publisher.publish(xyz_to_cloud(xyz, messages.header(123_456_789, "lidar"), intensity=xyz[:, 0].copy()))
+    assert wait_until(lambda: len(inbox.items) == 1)
+    cloud = inbox.items[0]
+    assert messages.stamp_ns(cloud.header.stamp) == 123_456_789 and cloud.header.frame_id == "lidar"
+    points = cloud_to_array(cloud)
+    np.testing.assert_array_equal(np.stack([points["x"], points["y"], points["z"]], axis=1), xyz)
+
+
+def test_a_bad_message_is_dropped_and_the_node_keeps_running(nodes):
+    talker, listener = nodes("talker"), nodes("listener")
+    good = Inbox()
+
+    def callback(msg) -> None:
+        if msg.data == "bad":
+            raise MessageError("malformed content")
+        good(msg.data)
+
+    subscription = listener.create_subscription("std_msgs/msg/String", "/test/chatter", callback)
+    publisher = talker.create_publisher("std_msgs/msg/String", "/test/chatter")
+    listener.spin_in_thread()
+    assert wait_until(lambda: publisher.get_subscription_count() > 0)
+    String = messages.msg_type("std_msgs/msg/String")
+    for text in ("one", "bad", "two"):
+        publisher.publish(String(data=text))
+    assert wait_until(lambda: len(good.items) == 2)
+    assert good.items == ["one", "two"] and subscription.dropped == 1
+
+
+def test_two_processes_publish_and_subscribe(nodes):
+    listener = nodes("listener")
+    inbox = Inbox()
+    listener.create_subscription("std_msgs/msg/String", "/test/from_child", inbox)
+    listener.spin_in_thread()
+    child = textwrap.dedent(
+        """
+        import time
+        from ssf_common import messages
+        from ssf_common.middleware import Node, shutdown
+        node = Node("child_talker")
+        pub = node.create_publisher("std_msgs/msg/String", "/test/from_child")
+        deadline = time.monotonic() + 10
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        for i in range(5):
+            pub.publish(messages.msg_type("std_msgs/msg/String")(data=f"msg {i}"))
+            time.sleep(0.02)
+        time.sleep(0.5)
+        node.destroy_node(); shutdown()
+        """
+    )
+    result = subprocess.run([sys.executable, "-P", "-c", child], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert wait_until(lambda: len(inbox.items) == 5)
+    assert [m.data for m in inbox.items] == [f"msg {i}" for i in range(5)]
+
+
+def test_topics_are_rmw_cyclonedds_names_with_type_hash_in_user_data(nodes):
+    from cyclonedds.builtin import BuiltinDataReader, BuiltinTopicDcpsPublication
+
+    from ssf_common.middleware.embedded import Participant
+
+    talker = nodes("talker")
+    talker.create_publisher("nav_msgs/msg/Odometry", "/odom")
+    reader = BuiltinDataReader(Participant.get().dp, BuiltinTopicDcpsPublication)
+    found = []
+    assert wait_until(lambda: bool(found.extend(s for s in reader.read(N=100) if getattr(s, "topic_name", "") == "rt/odom") or found))
+    sample = found[0]
+    assert sample.type_name == "nav_msgs::msg::dds_::Odometry_"
+    texts = [getattr(policy, "data", b"") for policy in sample.qos]
+    assert f"typehash={messages.type_hash('nav_msgs/msg/Odometry')};".encode() in texts
+    assert ("odom" in dict(talker.get_topic_names_and_types()).get("/odom", [""])[0].lower())
+
+
+def test_a_subscriber_knowing_only_the_ros2_type_name_receives_our_clouds(nodes):
+    """Stands in for `ros2 topic echo`: plain Cyclone, the ROS 2 DDS type name, XCDR1, no project code."""
+    from cyclonedds.domain import DomainParticipant
+    from cyclonedds.qos import Policy, Qos
+    from cyclonedds.sub import DataReader
+    from cyclonedds.topic import Topic
+
+    from ssf_common.middleware.embedded import Participant
+
+    talker = nodes("talker")
+    foreign = DomainParticipant(Participant.get().domain_id)
+    reader = DataReader(
+        foreign,
+        Topic(foreign, "rt/lidar/points", PointCloud2_),
+        Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(5), Policy.DataRepresentation(use_cdrv0_representation=True)),
+    )
+    publisher = talker.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
+    assert wait_until(lambda: publisher.get_subscription_count() > 0)
+    xyz = np.arange(30, dtype=np.float32).reshape(10, 3)
+    samples = []
+    deadline = time.monotonic() + 10
+    while not samples and time.monotonic() < deadline:
+        publisher.publish(xyz_to_cloud(xyz, messages.header(5_000_000_001, "lidar")))
+        time.sleep(0.1)
+        samples = [s for s in reader.take(N=10) if isinstance(s, PointCloud2_)]
+    assert samples, "the plain ROS 2 type subscriber got nothing"
+    cloud = samples[0]
+    assert (cloud.header.stamp.sec, cloud.header.stamp.nanosec, cloud.header.frame_id) == (5, 1, "lidar")
+    assert [f.name for f in cloud.fields][:3] == ["x", "y", "z"] and cloud.width == 10
+    received = np.frombuffer(bytes(cloud.data), dtype=np.float32).reshape(10, cloud.point_step // 4)[:, :3]
+    np.testing.assert_array_equal(received, xyz)
+
+
+def test_sim_time_follows_clock_and_drives_timers(nodes):
+    clock_source = nodes("clock_source")
+    node = nodes("timed", ["--ros-args", "-p", "use_sim_time:=true"])
+    ticks = Inbox()
+    node.create_timer(0.1, lambda: ticks(node.get_clock().now_ns()))
+    clock_pub = clock_source.create_publisher("rosgraph_msgs/msg/Clock", "/clock", QOS_DEFAULT)
+    node.spin_in_thread()
+    assert wait_until(lambda: clock_pub.get_subscription_count() > 0)
+    assert node.get_clock().now_ns() == 0
+    Clock = messages.msg_type("rosgraph_msgs/msg/Clock")
+    for step in range(1, 11):
+        clock_pub.publish(Clock(clock=messages.stamp(step * 50_000_000)))  # 0.05 s of sim time per step
+        time.sleep(0.03)
+    assert wait_until(lambda: node.get_clock().now_ns() == 500_000_000)
+    assert 3 <= len(ticks.items) <= 6  # 0.5 s of sim time at 10 Hz, whatever the wall time was
+    assert all(tick > 0 for tick in ticks.items)
