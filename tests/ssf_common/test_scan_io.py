@@ -1,0 +1,242 @@
+"""Scan files: round trips through every format and encoding, files from other writers, broken files."""
+
+import struct
+
+import numpy as np
+import pytest
+
+from ssf_common import scan_io
+from ssf_common.errors import DataError
+
+ALL_PCD_TYPES = np.dtype([
+    ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1"), ("ring", "<u2"), ("offset", "i1"),
+    ("id", "<i2"), ("count", "<i4"), ("flags", "<u4"), ("tick", "<i8"), ("stamp", "<u8"), ("time", "<f8"),
+    ("normal", "<f4", (3,)), ("histogram", "<u2", (5,)),
+])  # fmt: skip
+
+
+def random_points(dtype: np.dtype, count: int, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    points = np.zeros(count, dtype=dtype)
+    for name in dtype.names:
+        field = points[name]
+        if field.dtype.kind == "f":
+            field[...] = rng.normal(scale=30.0, size=field.shape)
+        else:
+            native = field.dtype.base.newbyteorder("=")
+            field[...] = rng.integers(np.iinfo(native).min, np.iinfo(native).max, field.shape, native, endpoint=True)
+    return points
+
+
+@pytest.mark.parametrize("encoding", scan_io.PCD_ENCODINGS)
+def test_pcd_round_trip_keeps_every_type_size_and_count(tmp_path, encoding):
+    points = random_points(ALL_PCD_TYPES, 301)
+    points["y"][[3, 7]] = np.nan
+    path = tmp_path / f"cloud_{encoding}.pcd"
+    scan_io.write_pcd(path, points, encoding=encoding)
+    back = scan_io.read_points(path)
+    assert back.dtype == ALL_PCD_TYPES
+    assert back.tobytes() == points.tobytes()
+    scan = scan_io.read_scan(path)
+    assert scan.shape == (299, 4) and scan.dtype == np.float32
+    np.testing.assert_array_equal(scan[:, 3], np.delete(points["intensity"], [3, 7]).astype(np.float32))
+
+
+def test_pcd_written_organized_keeps_width_and_height(tmp_path):
+    points = random_points(np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")]), 24).reshape(4, 6)
+    scan_io.write_pcd(tmp_path / "organized.pcd", points)
+    header = (tmp_path / "organized.pcd").read_bytes().split(b"DATA")[0]
+    assert b"WIDTH 6\nHEIGHT 4\n" in header and b"POINTS 24\n" in header
+    assert scan_io.read_points(tmp_path / "organized.pcd").tobytes() == points.tobytes()
+
+
+def test_hand_written_pcd_with_padding_columns_and_comments(tmp_path):
+    header = (
+        "# written by hand\nVERSION .7\nFIELDS x y z _ intensity\nSIZE 4 4 4 1 4\nTYPE F F F U F\n"
+        "COUNT 1 1 1 4 1\nWIDTH 2\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 2\nDATA binary\n"
+    )
+    body = struct.pack("<fff4xf", 1.0, 2.0, 3.0, 0.5) + struct.pack("<fff4xf", -1.0, -2.0, -3.0, 0.25)
+    (tmp_path / "padded.pcd").write_bytes(header.encode() + body)
+    points = scan_io.read_points(tmp_path / "padded.pcd")
+    assert points.dtype.names == ("x", "y", "z", "intensity")
+    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "padded.pcd"), [[1, 2, 3, 0.5], [-1, -2, -3, 0.25]])
+    ascii_text = header.replace("DATA binary", "DATA ascii").replace("SIZE 4 4 4 1 4", "SIZE 4 4 4 4 4")
+    ascii_text = ascii_text.replace("COUNT 1 1 1 4 1", "COUNT 1 1 1 1 1")
+    (tmp_path / "ascii.pcd").write_text(ascii_text + "1 2 3 0 0.5\n-1 -2 -3 0 0.25\n")
+    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "ascii.pcd"), [[1, 2, 3, 0.5], [-1, -2, -3, 0.25]])
+
+
+def test_lzf_decodes_overlapping_back_references():
+    # literal 'ab', then a back reference of length 7 at distance 2: 'abababababa'... (liblzf format)
+    stream = bytes([1]) + b"ab" + bytes([(5 << 5) | 0, 1])
+    assert scan_io.lzf_decompress(stream, 9) == b"ababababa"
+    long_run = bytes([0]) + b"z" + bytes([(7 << 5), 100, 0])
+    assert scan_io.lzf_decompress(long_run, 110) == b"z" * 110
+
+
+@pytest.mark.parametrize("kind", ["repetitive", "random", "mixed"])
+def test_lzf_round_trip(kind):
+    rng = np.random.default_rng(5)
+    data = {
+        "repetitive": b"lidar" * 3000 + bytes(5000),
+        "random": rng.integers(0, 256, 20000, dtype=np.uint8).tobytes(),
+        "mixed": np.repeat(rng.integers(0, 4, 4000, dtype=np.uint8), 3).tobytes() + rng.bytes(3000),
+    }[kind]
+    compressed = scan_io.lzf_compress(data)
+    assert scan_io.lzf_decompress(compressed, len(data)) == data
+    if kind == "repetitive":
+        assert len(compressed) < len(data) // 20
+
+
+@pytest.fixture(scope="module")
+def open3d_files(tmp_path_factory):
+    """x, y, z written by Open3D's own PCD and PLY writers (an independent implementation)."""
+    o3d = pytest.importorskip("open3d")
+    folder = tmp_path_factory.mktemp("open3d")
+    xyz = np.random.default_rng(4).normal(scale=10, size=(500, 3)).astype(np.float32).astype(np.float64)
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+    files = {
+        "compressed.pcd": {"write_ascii": False, "compressed": True},
+        "binary.pcd": {"write_ascii": False},
+        "binary.ply": {"write_ascii": False},
+        "ascii.ply": {"write_ascii": True},
+    }
+    for name, options in files.items():
+        assert o3d.io.write_point_cloud(str(folder / name), cloud, **options)
+    return folder, xyz, o3d
+
+
+@pytest.mark.parametrize("name", ["compressed.pcd", "binary.pcd", "binary.ply", "ascii.ply"])
+def test_files_written_by_open3d_are_read(open3d_files, name):
+    folder, xyz, _ = open3d_files
+    scan = scan_io.read_scan(folder / name)
+    tolerance = 1e-5 if name == "ascii.ply" else 0  # Open3D's ASCII PLY keeps 6 significant digits
+    np.testing.assert_allclose(scan, xyz, rtol=tolerance, atol=tolerance)
+
+
+def test_open3d_reads_our_compressed_pcd(open3d_files, tmp_path):
+    _, xyz, o3d = open3d_files
+    scan_io.write_pcd(tmp_path / "ours.pcd", xyz.astype(np.float32), encoding="binary_compressed")
+    np.testing.assert_array_equal(np.asarray(o3d.io.read_point_cloud(str(tmp_path / "ours.pcd")).points), xyz)
+
+
+def ply(fmt: str, vertices: bytes, before: str = "", after: str = "") -> bytes:
+    header = (
+        f"ply\nformat {fmt} 1.0\ncomment test\n{before}element vertex 2\nproperty float x\nproperty float y\n"
+        f"property float z\nproperty uchar intensity\n{after}end_header\n"
+    )
+    return header.encode() + vertices
+
+
+def test_ply_ascii_and_binary_with_other_elements(tmp_path):
+    expected = [[1.5, 2, 3, 7], [-4, 5.25, -6, 200]]
+    little, big = (b"".join(struct.pack(order + "fffB", *row) for row in expected) for order in "<>")
+    faces = "element face 1\nproperty list uchar int vertex_indices\n"
+    camera = "element camera 1\nproperty float a\nproperty float b\n"
+    files = {
+        "ascii.ply": ply("ascii", b"1.5 2 3 7\n-4 5.25 -6 200\n3 0 1 1\n", after=faces),
+        "ascii_camera_first.ply": ply("ascii", b"9 9\n1.5 2 3 7\n-4 5.25 -6 200\n", before=camera),
+        "little.ply": ply("binary_little_endian", little),
+        "big.ply": ply("binary_big_endian", big),
+        "little_camera_first.ply": ply("binary_little_endian", struct.pack("<ff", 9, 9) + little, before=camera),
+    }
+    for name, content in files.items():
+        (tmp_path / name).write_bytes(content)
+        np.testing.assert_array_equal(scan_io.read_scan(tmp_path / name), expected, err_msg=name)
+    assert scan_io.read_points(tmp_path / "little.ply")["intensity"].dtype == np.uint8
+
+
+def test_npy_and_kitti_bin(tmp_path):
+    xyzi = np.random.default_rng(6).normal(size=(40, 4)).astype(np.float32)
+    np.save(tmp_path / "xyz.npy", xyzi[:, :3].astype(np.float64))
+    np.save(tmp_path / "xyzi.npy", xyzi)
+    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "xyz.npy"), xyzi[:, :3])
+    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "xyzi.npy"), xyzi)
+    scan_io.write_bin(tmp_path / "000000.bin", xyzi)
+    assert (tmp_path / "000000.bin").stat().st_size == 40 * 16
+    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "000000.bin"), xyzi)
+    scan_io.write_bin(tmp_path / "xyz.bin", xyzi[:, :3])
+    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "xyz.bin")[:, 3], np.zeros(40))
+
+
+def test_real_scans(shared_data):
+    scans = shared_data / "lidar_scans"
+    vlp16 = scan_io.read_points(scans / "vlp16_1673400472138016708.pcd")
+    assert vlp16.size == 14831 and vlp16.dtype.itemsize == 32
+    assert vlp16["channel"].max() <= 15 and np.all(np.isfinite(vlp16["distance"]))
+    ranges = np.linalg.norm(np.stack([vlp16[axis] for axis in "xyz"], 1), axis=1)
+    np.testing.assert_allclose(ranges, vlp16["distance"], atol=0.01)
+    assert scan_io.read_scan(scans / "vlp16_1673400472138016708.pcd").shape == (14831, 4)
+    assert scan_io.read_scan(scans / "vlp32_1713492677464078412.pcd").shape == (26216, 3)
+
+
+def write_pcd_bytes(tmp_path, encoding="binary"):
+    scan_io.write_pcd(tmp_path / "good.pcd", random_points(ALL_PCD_TYPES, 50), encoding=encoding)
+    return (tmp_path / "good.pcd").read_bytes()
+
+
+def replace_header(old: bytes, new: bytes):
+    return lambda raw: raw.replace(old, new, 1)
+
+
+BROKEN = {
+    "binary_truncated": ("binary", lambda raw: raw[:-10], "truncated: .* bytes of binary point data"),
+    "compressed_truncated": ("binary_compressed", lambda raw: raw[:-10], "truncated: .* bytes of compressed data"),
+    "compressed_corrupt": ("binary_compressed", lambda raw: raw[:-400] + b"\xff" * 400, "corrupt compressed data"),
+    "ascii_truncated": ("ascii", lambda raw: raw[: raw.rindex(b"\n", 0, -200)], "truncated: .* ASCII values"),
+    "ascii_bad_number": ("ascii", replace_header(b"DATA ascii\n", b"DATA ascii\nnope "), "'x' holds a value"),
+    "no_data_line": ("binary", lambda raw: raw.replace(b"DATA", b"DOTA", 1), "not a PCD file"),
+    "unknown_encoding": ("binary", replace_header(b"DATA binary", b"DATA zipped"), "unknown DATA encoding 'zipped'"),
+    "bad_type": ("binary", replace_header(b"TYPE F", b"TYPE Q"), "unsupported TYPE Q"),
+    "count_mismatch": ("binary", replace_header(b"COUNT 1 ", b"COUNT "), "lists 14 FIELDS, 14 SIZE, 14 TYPE, 13 COUNT"),
+    "points_mismatch": ("binary", replace_header(b"POINTS 50", b"POINTS 51"), "WIDTH 50 × HEIGHT 1 but POINTS 51"),
+    "not_integer": ("binary", replace_header(b"WIDTH 50", b"WIDTH fifty"), "WIDTH value 'fifty' is not an integer"),
+    "garbage": ("binary", lambda raw: bytes(range(256)) * 10, "not a PCD file"),
+}
+
+
+@pytest.mark.parametrize("case", BROKEN)
+def test_broken_pcd_files_give_one_line(tmp_path, case):
+    encoding, corrupt, problem = BROKEN[case]
+    path = tmp_path / "broken.pcd"
+    path.write_bytes(corrupt(write_pcd_bytes(tmp_path, encoding)))
+    with pytest.raises(DataError, match=problem) as caught:
+        scan_io.read_points(path)
+    assert str(caught.value).startswith(str(path)) and "\n" not in str(caught.value)
+
+
+PLY_ASCII_VERTEX = b"ply\nformat ascii 1.0\nelement vertex 1\n"
+
+
+@pytest.mark.parametrize(
+    "name, content, problem",
+    [
+        ("short.bin", bytes(30), "not a multiple of 16"),
+        ("bad.npy", b"not numpy", "not a valid .npy"),
+        ("wide.npy", None, "expected a numeric N×3 or N×4"),
+        ("truncated.ply", ply("binary_little_endian", bytes(20)), "truncated"),
+        ("short_ascii.ply", ply("ascii", b"1 2 3 4\n"), "truncated"),
+        ("no_format.ply", b"ply\nelement vertex 1\nproperty float x\nend_header\n", "no format line"),
+        ("lists.ply", PLY_ASCII_VERTEX + b"property list uchar float x\nend_header\n1 2\n", "list property"),
+        ("weird.ply", PLY_ASCII_VERTEX + b"property quaternion q\nend_header\n", "not understood"),
+        ("scan.xyz", b"1 2 3\n", "unsupported scan format '.xyz'"),
+        ("nan.bin", np.full(8, np.nan, np.float32).tobytes(), "no point with finite x, y, z"),
+        ("noz.npy", "structured", "no z field"),
+    ],
+)
+def test_broken_scan_files_give_one_line(tmp_path, name, content, problem):
+    path = tmp_path / name
+    if name == "wide.npy":
+        np.save(path, np.zeros((4, 7)))
+    elif content == "structured":
+        np.save(path, np.zeros(3, dtype=[("x", "f4"), ("y", "f4")]))
+    else:
+        path.write_bytes(content)
+    with pytest.raises(DataError, match=problem) as caught:
+        scan_io.read_scan(path)
+    assert "\n" not in str(caught.value)
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(DataError, match="missing.pcd: no such file"):
+        scan_io.read_scan(tmp_path / "missing.pcd")
