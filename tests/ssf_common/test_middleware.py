@@ -270,3 +270,30 @@ def test_sim_time_follows_clock_and_drives_timers(nodes):
     assert wait_until(lambda: node.get_clock().now_ns() == 500_000_000)
     assert 3 <= len(ticks.items) <= 6  # 0.5 s of sim time at 10 Hz, whatever the wall time was
     assert all(tick > 0 for tick in ticks.items)
+
+
+def test_nodes_are_announced_on_ros_discovery_info_for_ros2_node_list(nodes):
+    from cyclonedds._clayer import ddspy_take
+    from cyclonedds.core import InstanceState, SampleState, ViewState
+    from cyclonedds.sub import DataReader
+
+    from ssf_common.middleware.embedded import QOS_DISCOVERY, Participant, dds_qos
+
+    node = nodes("announced_node")
+    publisher = node.create_publisher("std_msgs/msg/String", "/announced")
+    type_name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+    participant = Participant.get()
+    reader = DataReader(  # a late joiner: transient-local durability still hands it the last announcement
+        participant.dp,
+        participant.topic("", type_name, dds_name="ros_discovery_info"),
+        dds_qos(QOS_DISCOVERY, type_name),
+    )
+    mask = SampleState.Any | ViewState.Any | InstanceState.Any
+    infos = []
+    assert wait_until(lambda: bool(infos.extend(ddspy_take(reader._ref, mask, 10)) or infos))
+    info = messages.deserialize(infos[-1][0], type_name)
+    entries = {entry.node_name: entry for entry in info.node_entities_info_seq}
+    assert "announced_node" in entries
+    writer_gids = [bytes(gid.data) for gid in entries["announced_node"].writer_gid_seq]
+    assert publisher._transport.guid in writer_gids
+    assert bytes(info.gid.data) == participant.dp.guid.bytes

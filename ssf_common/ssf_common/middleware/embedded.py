@@ -60,6 +60,9 @@ class Participant:
         self.domain_id = domain_id
         self._topics: dict[str, Any] = {}
         self._publications: Any = None
+        self._nodes: dict[tuple[str, str], tuple[list[bytes], list[bytes]]] = {}
+        self._discovery_writer: Any = None
+        self._discovery_lock = threading.Lock()
 
     @classmethod
     def get(cls) -> "Participant":
@@ -80,15 +83,16 @@ class Participant:
         if instance is not None:
             instance._topics.clear()
             instance._publications = None
+            instance._discovery_writer = None
             del instance.dp
 
-    def topic(self, topic: str, type_name: str) -> Any:
+    def topic(self, topic: str, type_name: str, *, dds_name: str | None = None) -> Any:
         """The DDS topic for a ROS topic and type (created once)."""
         from cyclonedds.topic import Topic
 
         from ssf_common.middleware.dds_types import idl_struct
 
-        key = ros_topic_to_dds(topic)
+        key = dds_name or ros_topic_to_dds(topic)
         existing = self._topics.get(key)
         if existing is not None:
             if existing[1] != type_name:
@@ -97,6 +101,42 @@ class Participant:
         dds_topic = Topic(self.dp, key, idl_struct(type_name))
         self._topics[key] = (dds_topic, type_name)
         return dds_topic
+
+    def update_node(self, namespace: str, name: str, readers: list[bytes], writers: list[bytes]) -> None:
+        """Record a node's endpoints and announce them on ros_discovery_info (what `ros2 node list` reads)."""
+        with self._discovery_lock:
+            self._nodes[(namespace, name)] = (list(readers), list(writers))
+            self._announce()
+
+    def remove_node(self, namespace: str, name: str) -> None:
+        """Forget a node and announce it."""
+        with self._discovery_lock:
+            if self._nodes.pop((namespace, name), None) is not None:
+                self._announce()
+
+    def _announce(self) -> None:
+        import numpy as np
+        from cyclonedds.pub import DataWriter
+
+        type_name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+        if self._discovery_writer is None:
+            qos = dds_qos(QOS_DISCOVERY, type_name)
+            topic = self.topic("", type_name, dds_name="ros_discovery_info")
+            self._discovery_writer = DataWriter(self.dp, topic, qos)
+        gid = messages.msg_type("rmw_dds_common/msg/Gid")
+        node_info = messages.msg_type("rmw_dds_common/msg/NodeEntitiesInfo")
+
+        def gids(guids: list[bytes]) -> list[Any]:
+            return [gid(data=np.frombuffer(guid, dtype=np.uint8).copy()) for guid in guids]
+
+        info = messages.msg_type(type_name)(
+            gid=gid(data=np.frombuffer(self.dp.guid.bytes, dtype=np.uint8).copy()),
+            node_entities_info_seq=[
+                node_info(node_namespace=ns, node_name=name, reader_gid_seq=gids(r), writer_gid_seq=gids(w))
+                for (ns, name), (r, w) in sorted(self._nodes.items())
+            ],
+        )
+        write_raw(self._discovery_writer, messages.serialize(info), "ros_discovery_info")
 
     def topic_names_and_types(self) -> list[tuple[str, list[str]]]:
         """ROS topics that any writer on the domain currently offers."""
@@ -142,6 +182,21 @@ def dds_qos(qos: QoS, type_name: str) -> Any:
     )
 
 
+QOS_DISCOVERY = QoS(depth=1, durability=Durability.TRANSIENT_LOCAL)
+
+
+def write_raw(writer: Any, cdr: bytes | memoryview, topic: str) -> None:
+    """Write one CDR sample (encapsulation header included), padded to 4 bytes as Cyclone expects."""
+    from cyclonedds._clayer import ddspy_write
+
+    data = bytes(cdr)
+    if len(data) % 4:
+        data += b"\0" * (4 - len(data) % 4)
+    result = ddspy_write(writer._ref, data)
+    if result < 0:
+        raise MiddlewareError(f"DDS write on '{topic}' failed with code {result}")
+
+
 class EmbeddedPublisher:
     """Writes CDR samples to one topic."""
 
@@ -153,16 +208,14 @@ class EmbeddedPublisher:
         self.topic_name = topic
         self._writer = DataWriter(participant.dp, participant.topic(topic, type_name), dds_qos(qos, type_name))
 
+    @property
+    def guid(self) -> bytes:
+        """The writer's GUID (its ROS gid)."""
+        return self._writer.guid.bytes
+
     def publish_raw(self, cdr: bytes | memoryview) -> None:
         """Write one sample given as CDR bytes (encapsulation header included)."""
-        from cyclonedds._clayer import ddspy_write
-
-        data = bytes(cdr)
-        if len(data) % 4:
-            data += b"\0" * (4 - len(data) % 4)
-        result = ddspy_write(self._writer._ref, data)
-        if result < 0:
-            raise MiddlewareError(f"DDS write on '{self.topic_name}' failed with code {result}")
+        write_raw(self._writer, cdr, self.topic_name)
 
     def matched_count(self) -> int:
         """How many readers are matched."""
@@ -209,6 +262,11 @@ class EmbeddedSubscription:
             if len(samples) < _TAKE_BATCH:
                 return
 
+    @property
+    def guid(self) -> bytes:
+        """The reader's GUID (its ROS gid)."""
+        return self._reader.guid.bytes
+
     def matched_count(self) -> int:
         """How many writers are matched."""
         return len(self._reader.get_matched_publications()) if self._reader is not None else 0
@@ -219,24 +277,74 @@ class EmbeddedSubscription:
 
 
 class EmbeddedBackend:
-    """Creates embedded publishers and subscriptions; events go to the node's executor."""
+    """One node's transport on the process's participant; events go to the node's executor."""
 
     name = "dds"
 
+    def __init__(self, node_name: str, namespace: str) -> None:
+        self._participant = Participant.get()
+        self._node = (namespace, node_name)
+        self._readers: list[bytes] = []
+        self._writers: list[bytes] = []
+        self._participant.update_node(namespace, node_name, self._readers, self._writers)
+
     def create_publisher(self, type_name: str, topic: str, qos: QoS) -> EmbeddedPublisher:
         """A raw CDR writer."""
-        return EmbeddedPublisher(type_name, topic, qos)
+        publisher = EmbeddedPublisher(type_name, topic, qos)
+        self._writers.append(publisher.guid)
+        self._participant.update_node(*self._node, self._readers, self._writers)
+        return publisher
 
     def create_subscription(
         self, type_name: str, topic: str, qos: QoS, on_raw: Callable[[bytes], None], notify: Callable[[Any], None]
     ) -> EmbeddedSubscription:
         """A raw CDR reader; notify(subscription) is called from a DDS thread when data arrives."""
-        return EmbeddedSubscription(type_name, topic, qos, on_raw, notify)
+        subscription = EmbeddedSubscription(type_name, topic, qos, on_raw, notify)
+        self._readers.append(subscription.guid)
+        self._participant.update_node(*self._node, self._readers, self._writers)
+        return subscription
+
+    def destroy_node(self) -> None:
+        """Announce that the node left."""
+        if Participant._instance is self._participant:
+            self._participant.remove_node(*self._node)
+
+    def update_node(self, namespace: str, name: str, readers: list[bytes], writers: list[bytes]) -> None:
+        """Record a node's endpoints and announce them on ros_discovery_info (what `ros2 node list` reads)."""
+        with self._discovery_lock:
+            self._nodes[(namespace, name)] = (list(readers), list(writers))
+            self._announce()
+
+    def remove_node(self, namespace: str, name: str) -> None:
+        """Forget a node and announce it."""
+        with self._discovery_lock:
+            if self._nodes.pop((namespace, name), None) is not None:
+                self._announce()
+
+    def _announce(self) -> None:
+        import numpy as np
+        from cyclonedds.pub import DataWriter
+
+        type_name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
+        if self._discovery_writer is None:
+            qos = dds_qos(QOS_DISCOVERY, type_name)
+            topic = self.topic("", type_name, dds_name="ros_discovery_info")
+            self._discovery_writer = DataWriter(self.dp, topic, qos)
+        gid = messages.msg_type("rmw_dds_common/msg/Gid")
+        node_info = messages.msg_type("rmw_dds_common/msg/NodeEntitiesInfo")
+
+        def gids(guids: list[bytes]) -> list[Any]:
+            return [gid(data=np.frombuffer(guid, dtype=np.uint8).copy()) for guid in guids]
+
+        info = messages.msg_type(type_name)(
+            gid=gid(data=np.frombuffer(self.dp.guid.bytes, dtype=np.uint8).copy()),
+            node_entities_info_seq=[
+                node_info(node_namespace=ns, node_name=name, reader_gid_seq=gids(r), writer_gid_seq=gids(w))
+                for (ns, name), (r, w) in sorted(self._nodes.items())
+            ],
+        )
+        write_raw(self._discovery_writer, messages.serialize(info), "ros_discovery_info")
 
     def topic_names_and_types(self) -> list[tuple[str, list[str]]]:
         """Topics offered on the domain."""
         return Participant.get().topic_names_and_types()
-
-    def shutdown(self) -> None:
-        """Leave the DDS domain."""
-        Participant.close()

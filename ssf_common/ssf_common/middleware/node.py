@@ -170,7 +170,7 @@ def make_backend(node_name: str, namespace: str) -> Any:
         return RclpyBackend(node_name, namespace)
     from ssf_common.middleware.embedded import EmbeddedBackend
 
-    return EmbeddedBackend()
+    return EmbeddedBackend(node_name, namespace)
 
 
 class Node:

@@ -124,9 +124,3 @@ class RclpyBackend:
         """Destroy the rclpy node."""
         self._executor.remove_node(self._node)
         self._node.destroy_node()
-
-    def shutdown(self) -> None:
-        """Shut rclpy down (Jazzy: try_shutdown)."""
-        import rclpy
-
-        rclpy.try_shutdown()
