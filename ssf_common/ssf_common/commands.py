@@ -29,6 +29,19 @@ def _register_graph_commands(groups: CommandGroups) -> None:
     )
     launch.set_defaults(func=_launch)
 
+    demo = groups.top.add_parser(
+        "demo",
+        help="the main job: the closed loop in the simulator, recorded",
+        description="Run the whole graph (sim_bridge with its route follower, flow, segmentation, fusion, odometry, "
+        "planner) as node processes for --duration seconds of simulated driving, record every topic to MCAP, "
+        "and write the episode summary and a top-down picture to --out.",
+    )
+    demo.add_argument("--scenario", default="urban_100", help="scenario name or YAML file (default urban_100)")
+    demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated driving (default 20)")
+    demo.add_argument("--seed", type=int, default=-1, help="scenario seed (default: the scenario's own)")
+    demo.add_argument("--out", default=None, help="output folder (default bags/demo_<time>)")
+    demo.set_defaults(func=_demo)
+
 
 def _launch(args: argparse.Namespace) -> int:
     from ssf_common.errors import ConfigError
@@ -52,6 +65,16 @@ def _register_bag_commands(groups: CommandGroups) -> None:
     bag_commands = bag.add_subparsers(dest="bag_command", metavar="WHAT", required=True)
     info.add_parser(bag_commands)
     play.add_parser(bag_commands)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    import time
+    from pathlib import Path
+
+    from ssf_common.demo import run_demo
+
+    out = Path(args.out) if args.out else Path("bags") / time.strftime("demo_%Y%m%d_%H%M%S")
+    return run_demo(args.scenario, args.duration, out, args.seed)
 
 
 def _register_bench_commands(groups: CommandGroups) -> None:

@@ -36,6 +36,7 @@ class NodeSpec(Section):
     max_restarts: int = Field(default=3, ge=0)
     required: bool = False  # when it exits for good, the whole graph stops
     environment: dict[str, str] = Field(default_factory=dict)
+    ros_args: bool = True  # node executables take --ros-args; tools such as `ssf record` do not
 
 
 class GraphSpec(Section):
@@ -76,6 +77,8 @@ def command_line(node: NodeSpec, global_parameters: dict[str, Any]) -> list[str]
     module, func = _console_script(node.executable.split("/")[-1])
     argv = [sys.executable, "-P", "-c", f"import sys; from {module} import {func}; sys.exit({func}())"]
     argv += list(node.arguments)
+    if not node.ros_args:
+        return argv
     ros_args: list[str] = []
     if node.name:
         ros_args += ["-r", f"__node:={node.name}"]

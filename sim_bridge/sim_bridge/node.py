@@ -1,0 +1,194 @@
+"""sim_bridge: the simulator as a node — scans, /clock and ground truth out, /cmd_vel in, the episode scored."""
+
+from __future__ import annotations
+
+import json
+import time
+from enum import Enum
+from pathlib import Path
+from typing import Any
+
+from pydantic import Field
+
+from sim_bridge import ros_messages
+from sim_bridge.ego import Outcome, VelocityCommand
+from sim_bridge.scenario import load_scenario
+from sim_bridge.simulator import Frame, Simulator
+from ssf_common import topics
+from ssf_common.config import Section
+from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA, Node, run
+
+
+class Mode(str, Enum):
+    """How simulated time relates to commands and the wall clock."""
+
+    LOCKSTEP = "lockstep"  # each step waits for its /cmd_vel (or the timeout); deterministic
+    REALTIME = "realtime"  # steps every dt of wall time with the latest /cmd_vel
+
+
+class Driver(str, Enum):
+    """Who drives the ego vehicle."""
+
+    FOLLOW = "follow"  # the built-in route follower
+    NONE = "none"  # /cmd_vel (a planner)
+
+
+class SimNodeConfig(Section):
+    """Parameters of sim_bridge (same names in YAML, --ros-args -p and `ssf sim` flags)."""
+
+    scenario: str = "urban_100"
+    seed: int = Field(-1, description="-1: the scenario's own seed")
+    mode: Mode = Mode.LOCKSTEP
+    driver: Driver = Driver.FOLLOW
+    command_timeout_s: float = Field(0.5, gt=0, description="lockstep: apply the last command after this wait")
+    rate: float = Field(10.0, ge=0, description="steps per wall second with the follower in lockstep; 0 = flat out")
+    duration_s: float = Field(0.0, ge=0, description="stop after this much sim time; 0 = the scenario's time limit")
+    summary: str = Field("", description="write the episode summary JSON here when it ends")
+    render: str = Field("", description="draw the episode top-down to this PNG when it ends")
+    markers: bool = True
+    exit_when_done: bool = True
+    wait_for_subscribers: int = Field(0, ge=0, description="hold the first scan until /lidar/points has this many readers")
+    wait_timeout_s: float = Field(20.0, gt=0, description="give up waiting for readers after this long")
+
+
+class SimBridgeNode(Node):
+    """Steps the simulator and translates its frames into messages."""
+
+    def __init__(self, argv: list[str] | None = None) -> None:
+        super().__init__("sim_bridge", argv=argv)
+        self.config = self.declare_config(SimNodeConfig)
+        scenario = load_scenario(self.config.scenario)
+        self.sim = Simulator(scenario, None if self.config.seed < 0 else self.config.seed)
+        self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
+        self.command = VelocityCommand()
+        self.fresh_command = False
+        self.published_at = 0.0
+        self.step_ms: list[float] = []
+        self.finished = False
+        self.pub_clock = self.create_publisher("rosgraph_msgs/msg/Clock", topics.CLOCK, QOS_DEFAULT)
+        self.pub_points = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, QOS_SENSOR_DATA)
+        self.pub_truth = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.GT_FLOW, QOS_DEFAULT)
+        self.pub_odom = self.create_publisher("nav_msgs/msg/Odometry", topics.GT_ODOM, QOS_DEFAULT)
+        self.pub_tf = self.create_publisher("tf2_msgs/msg/TFMessage", topics.TF, QOS_DEFAULT)
+        self.pub_obstacles = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.GT_OBSTACLES, QOS_DEFAULT)
+        self.pub_markers = self.create_publisher("visualization_msgs/msg/MarkerArray", topics.MARKERS, QOS_DEFAULT)
+        self.pub_episode = self.create_publisher("ssf_interfaces/msg/EpisodeResult", topics.EPISODE, QOS_LATCHED)
+        self.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_cmd_vel, QOS_DEFAULT)
+        self.time_limit = self.config.duration_s or scenario.episode.time_limit
+        self.started = False
+        self.created_at = time.monotonic()
+        self.sim.reset()
+        self.create_timer(self._tick_period(), self.tick)
+        self.get_logger().info(
+            f"scenario '{self.config.scenario}' seed {self.sim.seed}: {scenario.agents.count} agents, "
+            f"route {self.sim.world.route_length:.0f} m, {self.config.mode.value}, driver {self.config.driver.value}"
+        )
+
+    def _tick_period(self) -> float:
+        if self.config.mode is Mode.REALTIME:
+            return self.sim.dt
+        if self.follower is not None and self.config.rate > 0:
+            return 1.0 / self.config.rate
+        return 0.002  # lockstep: poll for the command or its timeout
+
+    def on_cmd_vel(self, msg: Any) -> None:
+        """Take a velocity command; in lockstep it releases the step that waits for it."""
+        self.command = VelocityCommand(float(msg.linear.x), float(msg.angular.z))
+        self.fresh_command = True
+        if self.config.mode is Mode.LOCKSTEP and self.follower is None:
+            self.tick()
+
+    def tick(self) -> None:
+        """Advance one step when the mode says it is time."""
+        if self.finished:
+            return
+        if not self.started:
+            self._start_when_readers_joined()
+            return
+        if self.config.mode is Mode.LOCKSTEP and self.follower is None:
+            waited = time.monotonic() - self.published_at
+            if not self.fresh_command and waited < self.config.command_timeout_s:
+                return
+        frame = self.sim.frame
+        command = self.command
+        if self.follower is not None:
+            command = self.follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
+        self.fresh_command = False
+        start = time.perf_counter()
+        previous = frame
+        frame = self.sim.step(command)
+        self.step_ms.append((time.perf_counter() - start) * 1e3)
+        self._publish(frame, previous)
+        if self.sim.done or frame.status.time >= self.time_limit - 1e-9:
+            self._finish(frame)
+
+    def _start_when_readers_joined(self) -> None:
+        readers = self.pub_points.get_subscription_count()
+        waited = time.monotonic() - self.created_at
+        if readers < self.config.wait_for_subscribers and waited < self.config.wait_timeout_s:
+            return
+        if readers < self.config.wait_for_subscribers:
+            self.get_logger().warning(f"starting with {readers} of {self.config.wait_for_subscribers} scan readers")
+        self.started = True
+        self._publish(self.sim.frame)
+
+    def _publish(self, frame: Frame, previous: Frame | None = None) -> None:
+        stamp = frame.stamp_ns
+        self.pub_clock.publish(ros_messages.clock(stamp))
+        self.pub_tf.publish(ros_messages.transforms(frame.base_pose, frame.pose, stamp))
+        self.pub_odom.publish(ros_messages.odometry(frame.base_pose, frame.ego, stamp))
+        self.pub_obstacles.publish(ros_messages.obstacles(frame.agents, stamp))
+        if self.config.markers:
+            self.pub_markers.publish(ros_messages.markers(frame.agents, stamp))
+        if previous is not None and frame.flow is not None:
+            self.pub_truth.publish(ros_messages.truth_cloud(previous.scan, frame.flow, previous.stamp_ns))
+        self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))
+        if frame.index % 10 == 0:
+            self.pub_episode.publish(self._result(frame))
+        self.published_at = time.monotonic()
+
+    def _result(self, frame: Frame) -> Any:
+        return ros_messages.episode_result(
+            frame.status, self.config.scenario, self.sim.seed, len(frame.agents), frame.stamp_ns
+        )
+
+    def _finish(self, frame: Frame) -> None:
+        self.finished = True
+        status = frame.status
+        self.pub_episode.publish(self._result(frame))
+        summary = episode_summary(self.config.scenario, self.sim.seed, status, len(frame.agents), self.step_ms)
+        self.get_logger().info("episode over: " + json.dumps(summary))
+        if self.config.summary:
+            Path(self.config.summary).parent.mkdir(parents=True, exist_ok=True)
+            Path(self.config.summary).write_text(json.dumps(summary, indent=2) + "\n")
+        try:
+            if self.config.render:
+                from sim_bridge.render import render_episode
+
+                render_episode(self.sim, self.config.render)
+        finally:
+            if self.config.exit_when_done:
+                self.request_shutdown()
+
+
+def episode_summary(scenario: str, seed: int, status: Any, num_agents: int, step_ms: list[float]) -> dict[str, Any]:
+    """The JSON summary of an episode."""
+    import numpy as np
+
+    return {
+        "scenario": scenario,
+        "seed": seed,
+        "outcome": Outcome(int(status.outcome)).name.lower(),
+        "time_s": round(float(status.time), 3),
+        "distance_m": round(float(status.distance), 3),
+        "average_speed_mps": round(float(status.average_speed), 3),
+        "min_clearance_m": round(float(status.min_clearance), 3),
+        "collided_with": status.collided_with,
+        "agents": num_agents,
+        "step_ms_median": round(float(np.median(step_ms)), 2) if step_ms else None,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script: ros2 run sim_bridge sim_bridge."""
+    return run(SimBridgeNode, argv)

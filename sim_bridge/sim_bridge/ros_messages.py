@@ -1,0 +1,157 @@
+"""Simulator state as ROS messages: scans, ground-truth flow, odometry, tf, obstacles, markers, episode result."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from sim_bridge.ego import EgoState
+from sim_bridge.ground_truth import FlowTruth
+from sim_bridge.lidar import Scan
+from sim_bridge.simulator import EpisodeStatus
+from sim_bridge.traffic import AgentKind, AgentStates
+from ssf_common import geometry, messages
+from ssf_common.pointcloud import xyz_to_cloud
+
+WORLD_FRAME = "world"
+BASE_FRAME = "base_link"
+LIDAR_FRAME = "lidar"
+
+_OBSTACLE_KIND = {AgentKind.VEHICLE: 1, AgentKind.PEDESTRIAN: 2}
+
+
+def scan_cloud(scan: Scan, stamp_ns: int) -> Any:
+    """/lidar/points: x, y, z, intensity, ring, time in the sensor frame."""
+    return xyz_to_cloud(
+        scan.points, messages.header(stamp_ns, LIDAR_FRAME), intensity=scan.intensity, ring=scan.ring, time=scan.time
+    )
+
+
+def truth_cloud(scan: Scan, truth: FlowTruth, stamp_ns: int) -> Any:
+    """/sim/ground_truth/flow: scan t with its exact flow, instance, class and dynamic flag."""
+    return xyz_to_cloud(
+        scan.points,
+        messages.header(stamp_ns, LIDAR_FRAME),
+        flow_x=truth.flow[:, 0],
+        flow_y=truth.flow[:, 1],
+        flow_z=truth.flow[:, 2],
+        instance=scan.instance,
+        label=scan.label,
+        dynamic=truth.dynamic,
+    )
+
+
+def odometry(base_pose: np.ndarray, ego: EgoState, stamp_ns: int) -> Any:
+    """nav_msgs/Odometry of base_link in the world frame, twist in base_link."""
+    twist = messages.msg_type("geometry_msgs/msg/Twist")(
+        linear=geometry.vector3_msg(np.array([ego.speed, 0.0, 0.0])),
+        angular=geometry.vector3_msg(np.array([0.0, 0.0, ego.yaw_rate])),
+    )
+    return messages.msg_type("nav_msgs/msg/Odometry")(
+        header=messages.header(stamp_ns, WORLD_FRAME),
+        child_frame_id=BASE_FRAME,
+        pose=messages.msg_type("geometry_msgs/msg/PoseWithCovariance")(
+            pose=geometry.pose_msg(base_pose), covariance=np.zeros(36)
+        ),
+        twist=messages.msg_type("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)),
+    )
+
+
+def transforms(base_pose: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int) -> Any:
+    """/tf: world -> base_link -> lidar."""
+    mount = np.linalg.inv(base_pose) @ lidar_pose
+    return messages.msg_type("tf2_msgs/msg/TFMessage")(
+        transforms=[
+            geometry.transform_stamped_msg(base_pose, stamp_ns, WORLD_FRAME, BASE_FRAME),
+            geometry.transform_stamped_msg(mount, stamp_ns, BASE_FRAME, LIDAR_FRAME),
+        ]
+    )
+
+
+def obstacles(agents: AgentStates, stamp_ns: int) -> Any:
+    """Every agent as ssf_interfaces/ObstacleArray in the world frame (ground truth standing in for perception)."""
+    obstacle = messages.msg_type("ssf_interfaces/msg/Obstacle")
+    items = []
+    for i in range(len(agents)):
+        centre = agents.position[i].copy()
+        centre[2] += agents.size[i, 2] / 2
+        pose = messages.msg_type("geometry_msgs/msg/Pose")(
+            position=geometry.point_msg(centre), orientation=geometry.yaw_quaternion_msg(float(agents.yaw[i]))
+        )
+        items.append(
+            obstacle(
+                id=int(agents.ids[i]),
+                kind=_OBSTACLE_KIND.get(AgentKind(int(agents.kind[i])), 0),
+                pose=pose,
+                size=geometry.vector3_msg(agents.size[i]),
+                velocity=geometry.vector3_msg(np.array([agents.velocity[i, 0], agents.velocity[i, 1], 0.0])),
+                yaw_rate=float(agents.yaw_rate[i]),
+                num_points=0,
+                confidence=1.0,
+            )
+        )
+    return messages.msg_type("ssf_interfaces/msg/ObstacleArray")(
+        header=messages.header(stamp_ns, WORLD_FRAME), obstacles=items
+    )
+
+
+def markers(agents: AgentStates, stamp_ns: int) -> Any:
+    """visualization_msgs/MarkerArray: a cube per vehicle, a cylinder per pedestrian (Foxglove, RViz)."""
+    marker = messages.msg_type("visualization_msgs/msg/Marker")
+    color = messages.msg_type("std_msgs/msg/ColorRGBA")
+    duration = messages.msg_type("builtin_interfaces/msg/Duration")
+    header = messages.header(stamp_ns, WORLD_FRAME)
+    items = []
+    for i in range(len(agents)):
+        is_vehicle = int(agents.kind[i]) == AgentKind.VEHICLE
+        centre = agents.position[i].copy()
+        centre[2] += agents.size[i, 2] / 2
+        items.append(
+            marker(
+                header=header,
+                ns="vehicles" if is_vehicle else "pedestrians",
+                id=int(agents.ids[i]),
+                type=1 if is_vehicle else 3,  # CUBE, CYLINDER
+                action=0,
+                pose=messages.msg_type("geometry_msgs/msg/Pose")(
+                    position=geometry.point_msg(centre), orientation=geometry.yaw_quaternion_msg(float(agents.yaw[i]))
+                ),
+                scale=geometry.vector3_msg(agents.size[i]),
+                color=color(r=0.2, g=0.5, b=0.9, a=0.8) if is_vehicle else color(r=0.95, g=0.6, b=0.1, a=0.9),
+                lifetime=duration(sec=0, nanosec=300_000_000),
+                frame_locked=False,
+                points=[],
+                colors=[],
+                texture_resource="",
+                texture=messages.msg_type("sensor_msgs/msg/CompressedImage")(
+                    header=messages.header(0, ""), format="", data=np.zeros(0, np.uint8)
+                ),
+                uv_coordinates=[],
+                text="",
+                mesh_resource="",
+                mesh_file=messages.msg_type("visualization_msgs/msg/MeshFile")(filename="", data=np.zeros(0, np.uint8)),
+                mesh_use_embedded_materials=False,
+            )
+        )
+    return messages.msg_type("visualization_msgs/msg/MarkerArray")(markers=items)
+
+
+def episode_result(status: EpisodeStatus, scenario: str, seed: int, num_agents: int, stamp_ns: int) -> Any:
+    """ssf_interfaces/EpisodeResult."""
+    return messages.msg_type("ssf_interfaces/msg/EpisodeResult")(
+        header=messages.header(stamp_ns, WORLD_FRAME),
+        scenario=scenario,
+        seed=seed,
+        outcome=int(status.outcome),
+        time=float(status.time),
+        distance=float(status.distance),
+        average_speed=float(status.average_speed),
+        min_clearance=float(status.min_clearance) if np.isfinite(status.min_clearance) else -1.0,
+        num_agents=num_agents,
+    )
+
+
+def clock(stamp_ns: int) -> Any:
+    """rosgraph_msgs/Clock."""
+    return messages.msg_type("rosgraph_msgs/msg/Clock")(clock=messages.stamp(stamp_ns))

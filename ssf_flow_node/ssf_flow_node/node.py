@@ -1,0 +1,145 @@
+"""ssf_flow_node: scene flow between consecutive scans on /lidar/points, re-estimated for each mask hint."""
+
+from __future__ import annotations
+
+import collections
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ssf_common import messages, topics
+from ssf_common.errors import MessageError
+from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
+from ssf_common.pointcloud import cloud_to_array, decode_cloud_or_none, xyz_to_cloud
+from ssf_common.worker import LatestWorker
+from ssf_flow_node.core.estimator import FlowConfig, make_estimator
+
+SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
+MASK_FIELD = "mask"  # probability that a point moves, in [0, 1]
+ITERATION_FIELD = "iteration"
+
+
+@dataclass(frozen=True)
+class Scan:
+    """One received scan: its stamp, frame and finite points."""
+
+    stamp_ns: int
+    frame_id: str
+    xyz: np.ndarray
+
+
+@dataclass(frozen=True)
+class FlowJob:
+    """Flow of scan t towards scan t+1, optionally conditioned on a mask, answering one iteration."""
+
+    scan: Scan
+    next_scan: Scan
+    mask: np.ndarray | None
+    iteration: int
+
+
+def flow_cloud(job: FlowJob, flow: np.ndarray) -> Any:
+    """PointCloud2 of scan t with its flow and the iteration it answers (constant per point)."""
+    return xyz_to_cloud(
+        job.scan.xyz,
+        messages.header(job.scan.stamp_ns, job.scan.frame_id),
+        flow_x=flow[:, 0],
+        flow_y=flow[:, 1],
+        flow_z=flow[:, 2],
+        iteration=np.full(len(flow), job.iteration, dtype=np.uint32),
+    )
+
+
+def read_mask_hint(msg: Any, expected_points: int) -> tuple[np.ndarray, int]:
+    """Mask and iteration from a /ssf/mask_hint cloud, checked against the scan it refers to."""
+    points = cloud_to_array(msg)
+    names = points.dtype.names or ()
+    for name in (MASK_FIELD, ITERATION_FIELD):
+        if name not in names:
+            raise MessageError(f"mask hint has no '{name}' field (fields: {', '.join(names)})")
+    if len(points) != expected_points:
+        raise MessageError(f"mask hint has {len(points)} points but the scan it refers to has {expected_points}")
+    mask = np.asarray(points[MASK_FIELD], dtype=np.float32)
+    if not np.isfinite(mask).all() or mask.min() < 0 or mask.max() > 1:
+        raise MessageError("mask hint values must be finite probabilities in [0, 1]")
+    return mask, int(points[ITERATION_FIELD][0]) if len(points) else 0
+
+
+class FlowNode(Node):
+    """Translates scans and mask hints into estimator calls, and flow into PointCloud2."""
+
+    def __init__(self, argv: list[str] | None = None) -> None:
+        super().__init__("ssf_flow_node", argv=argv)
+        self.config = self.declare_config(FlowConfig)
+        device = self.declare_parameter("device", "cpu").value
+        report_period = self.declare_parameter("report_period_s", 5.0).value
+        self.estimator = make_estimator(config=self.config, device=device)
+        self.scans: collections.deque[Scan] = collections.deque(maxlen=SCAN_HISTORY)
+        self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
+        self.worker = LatestWorker(self._estimate, ("hint", "scan"), self.get_logger(), "flow")
+        self.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA)
+        self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, self.on_mask_hint, QOS_DEFAULT)
+        self.create_timer(report_period, self._report)
+        self._compute_ms: list[float] = []
+        self.get_logger().info(f"estimator '{self.config.estimator}' on {device}")
+
+    def on_scan(self, msg: Any) -> None:
+        """Remember the scan and ask for the flow of the previous one towards it."""
+        decoded = decode_cloud_or_none(msg, self.get_logger(), topics.LIDAR_POINTS)
+        if decoded is None:
+            return
+        scan = Scan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
+        if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
+            self.get_logger().warning("scan stamps went backwards: starting a new sequence")
+            self.scans.clear()
+        if self.scans:
+            self.worker.submit("scan", FlowJob(self.scans[-1], scan, None, 0))
+        self.scans.append(scan)
+
+    def on_mask_hint(self, msg: Any) -> None:
+        """Re-estimate the flow of the scan the hint refers to, conditioned on its mask."""
+        stamp = messages.stamp_ns(msg.header.stamp)
+        pair = self._pair_of(stamp)
+        if pair is None:
+            self.get_logger().warning(f"mask hint for stamp {stamp} matches no recent scan pair; dropped")
+            return
+        try:
+            mask, iteration = read_mask_hint(msg, len(pair[0].xyz))
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.MASK_HINT}: {err}")
+            return
+        self.worker.submit("hint", FlowJob(pair[0], pair[1], mask, iteration))
+
+    def _pair_of(self, stamp_ns: int) -> tuple[Scan, Scan] | None:
+        scans = list(self.scans)
+        for scan, next_scan in zip(scans, scans[1:]):
+            if scan.stamp_ns == stamp_ns:
+                return scan, next_scan
+        return None
+
+    def _estimate(self, _kind: str, job: FlowJob) -> None:
+        start = time.perf_counter()
+        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, job.mask)
+        self._compute_ms.append((time.perf_counter() - start) * 1e3)
+        self.flow_pub.publish(flow_cloud(job, result.flow))
+
+    def _report(self) -> None:
+        if not self._compute_ms:
+            return
+        median = float(np.median(self._compute_ms))
+        self.get_logger().info(
+            f"flow: {self.worker.processed['scan']} scans, {self.worker.processed['hint']} mask hints, "
+            f"median {median:.1f} ms; dropped {self.worker.dropped['scan']} scans that arrived while busy"
+        )
+        self._compute_ms.clear()
+
+    def on_shutdown(self) -> None:
+        """Stop the worker."""
+        self.worker.stop()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console script: ros2 run ssf_flow_node ssf_flow_node."""
+    return run(FlowNode, argv)
