@@ -1,0 +1,49 @@
+"""Graph files as ROS 2 launch descriptions, for `ros2 launch` on a Jazzy install (launch_ros needed)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from ssf_common.launch import GraphSpec, NodeSpec
+
+# Which ament package installs each executable (where `ros2 run` finds it).
+EXECUTABLE_PACKAGES = {
+    "sim_bridge": "sim_bridge",
+    "ssf_flow_node": "ssf_flow_node",
+    "ssf_seg_node": "ssf_seg_node",
+    "ssf_fusion_node": "ssf_seg_node",
+    "ssf_odom_node": "ssf_odom_node",
+    "ssf_planner_node": "ssf_planner_node",
+}
+
+
+def launch_actions(graph: GraphSpec, record_dir: str | None = None) -> list[Any]:
+    """launch_ros Node actions for the graph's nodes; `ssf record` becomes `ros2 bag record` (MCAP)."""
+    from launch.actions import ExecuteProcess
+    from launch_ros.actions import Node
+
+    actions: list[Any] = []
+    for spec in graph.nodes:
+        if spec.executable == "ssf":
+            if spec.arguments[:1] == ["record"]:
+                command = ["ros2", "bag", "record", "--all", "--storage", "mcap"]
+                actions.append(ExecuteProcess(cmd=command + (["-o", record_dir] if record_dir else []), output="screen"))
+            continue
+        actions.append(_node_action(Node, spec, graph.global_parameters))
+    return actions
+
+
+def _node_action(node_class: Any, spec: NodeSpec, global_parameters: dict[str, Any]) -> Any:
+    parameters: list[Any] = [{**global_parameters, **spec.parameters}]
+    if spec.params_file:
+        parameters.insert(0, spec.params_file)
+    return node_class(
+        package=EXECUTABLE_PACKAGES[spec.executable],
+        executable=spec.executable,
+        name=spec.name or spec.executable,
+        parameters=parameters,
+        remappings=list(spec.remappings.items()),
+        arguments=list(spec.arguments),
+        respawn=spec.respawn,
+        output="screen",
+    )
