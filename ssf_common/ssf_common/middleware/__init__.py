@@ -64,6 +64,9 @@ def run(node_factory: Callable[..., Node], argv: Sequence[str] | None = None) ->
         shutdown()
         return 0
 
+    for name in node.undeclared_overrides():
+        node.get_logger().warning(f"ignoring parameter '{name}': {node.get_name()} has no such parameter")
+
     def stop(_signum: int, _frame: object) -> None:
         node.request_shutdown()
 

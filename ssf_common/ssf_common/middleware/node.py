@@ -246,16 +246,24 @@ class Node:
         """Whether the parameter is declared."""
         return name in self._parameters
 
+    def undeclared_overrides(self) -> list[str]:
+        """Overrides given on the command line or in a params file that no declaration used."""
+        return sorted(name for name in self._overrides if name not in self._parameters)
+
     def declare_config(self, model: type[ModelT], prefix: str = "") -> ModelT:
         """Declare every field of a config model as a dotted parameter and return the validated model."""
         defaults = config_lib.flatten(model().model_dump(mode="json"))
         values = {}
         for name, default in defaults.items():
             values[name] = self.declare_parameter(f"{prefix}{name}", default).value
-        unknown = [key for key in self._overrides if key.startswith(prefix) and key[len(prefix):] not in defaults]
-        unknown = [key for key in unknown if key != "use_sim_time" and key not in self._parameters]
-        if unknown:
-            raise ConfigError(f"unknown parameter '{unknown[0]}' for node {self._name}")
+        sections = {name.split(".")[0] + "." for name in defaults if "." in name}
+        misspelled = [
+            key for key in self._overrides
+            if key.startswith(prefix) and key[len(prefix):] not in defaults
+            and any(key[len(prefix):].startswith(section) for section in sections)
+        ]
+        if misspelled:
+            raise ConfigError(f"unknown parameter '{misspelled[0]}' for node {self._name}")
         return config_lib.build(model, values, source=f"parameters of {self._name}")
 
     # Communication

@@ -1,0 +1,117 @@
+"""ssf_flow_node in a running graph: flow for replayed scans, mask hints answered, malformed clouds dropped."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from ssf_common import messages
+from ssf_common.middleware import QOS_SENSOR_DATA, Node
+from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
+from ssf_flow_node.node import FlowNode
+
+SHIFT = np.array([0.6, -0.2, 0.0], dtype=np.float32)
+
+
+def wait_until(predicate, timeout_s: float = 30.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        time.sleep(0.02)
+    return predicate()
+
+
+def scene(seed: int = 0) -> np.ndarray:
+    """A static scene: ground, two walls and scattered poles, ~6000 points."""
+    rng = np.random.default_rng(seed)
+    ground = np.c_[rng.uniform(-30, 30, (3000, 2)), rng.normal(-1.7, 0.02, 3000)]
+    wall_a = np.c_[rng.uniform(-30, 30, 1200), np.full(1200, 8.0), rng.uniform(-1.7, 3, 1200)]
+    wall_b = np.c_[np.full(1200, 25.0), rng.uniform(-8, 8, 1200), rng.uniform(-1.7, 3, 1200)]
+    poles = np.c_[rng.choice([-12.0, -4.0, 5.0, 14.0], 600) + rng.normal(0, 0.1, 600), rng.normal(-5, 0.1, 600), rng.uniform(-1.7, 2, 600)]
+    return np.vstack([ground, wall_a, wall_b, poles]).astype(np.float32)
+
+
+def malformed_clouds() -> dict[str, object]:
+    """One cloud per kind of malformation a subscriber must survive."""
+    good = xyz_to_cloud(scene()[:100], messages.header(1, "lidar"))
+    PointCloud2 = messages.msg_type("sensor_msgs/msg/PointCloud2")
+    PointField = messages.msg_type("sensor_msgs/msg/PointField")
+
+    def variant(**changes):
+        fields = dict(
+            header=messages.header(1, "lidar"), height=good.height, width=good.width, fields=good.fields,
+            is_bigendian=False, point_step=good.point_step, row_step=good.row_step, data=good.data, is_dense=True,
+        )
+        fields.update(changes)
+        return PointCloud2(**fields)
+
+    nan = np.full((50, 3), np.nan, dtype=np.float32)
+    return {
+        "short data": variant(data=good.data[:-5]),
+        "unknown datatype": variant(fields=[PointField(name=n, offset=4 * i, datatype=42, count=1) for i, n in enumerate("xyz")]),
+        "no xyz": variant(fields=[PointField(name="intensity", offset=0, datatype=7, count=1)]),
+        "all NaN": xyz_to_cloud(nan, messages.header(1, "lidar")),
+        "empty": variant(width=0, row_step=0, data=np.zeros(0, np.uint8)),
+    }
+
+
+@pytest.fixture
+def graph():
+    flow_node = FlowNode(argv=["--ros-args", "-p", "report_period_s:=60.0"])
+    flow_node.spin_in_thread()
+    probe = Node("probe")
+    received: list = []
+    probe.create_subscription("sensor_msgs/msg/PointCloud2", "/ssf/flow", received.append)
+    probe.spin_in_thread()
+    scans = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
+    hints = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/ssf/mask_hint")
+    assert wait_until(lambda: scans.get_subscription_count() > 0 and hints.get_subscription_count() > 0)
+    yield flow_node, scans, hints, received
+    flow_node.request_shutdown()
+    flow_node.on_shutdown()
+    flow_node.destroy_node()
+    probe.destroy_node()
+
+
+def test_flow_for_replayed_scans_and_malformed_clouds_dropped(graph, capfd):
+    flow_node, scans, _hints, received = graph
+    for cloud in malformed_clouds().values():
+        scans.publish(cloud)
+        time.sleep(0.05)
+    points = scene()
+    scans.publish(xyz_to_cloud(points, messages.header(1_000_000_000, "lidar")))
+    time.sleep(0.1)
+    scans.publish(xyz_to_cloud(points - SHIFT, messages.header(1_100_000_000, "lidar")))
+    assert wait_until(lambda: len(received) == 1)
+    flow = cloud_to_array(received[0])
+    assert messages.stamp_ns(received[0].header.stamp) == 1_000_000_000
+    assert len(flow) == len(points) and int(flow["iteration"][0]) == 0
+    estimate = np.stack([flow["flow_x"], flow["flow_y"], flow["flow_z"]], axis=1)
+    assert np.median(np.linalg.norm(estimate + SHIFT, axis=1)) < 0.05  # the scene moved by -SHIFT
+    log = capfd.readouterr().err
+    for problem in ("data", "datatype", "x/y/z", "NaN", "empty"):
+        assert problem in log, f"no log line about '{problem}'"
+    assert log.count("dropped a message on /lidar/points") == 5
+
+
+def test_mask_hint_is_answered_with_its_iteration(graph):
+    _flow_node, scans, hints, received = graph
+    points = scene(1)
+    scans.publish(xyz_to_cloud(points, messages.header(2_000_000_000, "lidar")))
+    time.sleep(0.1)
+    scans.publish(xyz_to_cloud(points - SHIFT, messages.header(2_100_000_000, "lidar")))
+    assert wait_until(lambda: len(received) == 1)
+    hint = xyz_to_cloud(
+        points, messages.header(2_000_000_000, "lidar"),
+        mask=np.zeros(len(points), np.float32), iteration=np.full(len(points), 3, np.uint32),
+    )
+    hints.publish(hint)
+    assert wait_until(lambda: len(received) == 2)
+    answer = cloud_to_array(received[1])
+    assert messages.stamp_ns(received[1].header.stamp) == 2_000_000_000
+    assert int(answer["iteration"][0]) == 3
+    bad_hint = xyz_to_cloud(points[:10], messages.header(2_000_000_000, "lidar"), mask=np.zeros(10, np.float32), iteration=np.zeros(10, np.uint32))
+    hints.publish(bad_hint)  # wrong point count: dropped with one line, nothing published
+    time.sleep(0.5)
+    assert len(received) == 2
