@@ -37,6 +37,7 @@ class SimNodeConfig(Section):
     """Parameters of sim_bridge (same names in YAML, --ros-args -p and `ssf sim` flags)."""
 
     scenario: str = "urban_100"
+    overrides: list[str] = Field(default_factory=list, description="scenario settings as NAME=VALUE, e.g. agents.count=20")
     seed: int = Field(-1, description="-1: the scenario's own seed")
     mode: Mode = Mode.LOCKSTEP
     driver: Driver = Driver.FOLLOW
@@ -57,7 +58,7 @@ class SimBridgeNode(Node):
     def __init__(self, argv: list[str] | None = None) -> None:
         super().__init__("sim_bridge", argv=argv)
         self.config = self.declare_config(SimNodeConfig)
-        scenario = load_scenario(self.config.scenario)
+        scenario = load_scenario(self.config.scenario, scenario_overrides(self.config.overrides))
         self.sim = Simulator(scenario, None if self.config.seed < 0 else self.config.seed)
         self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
         self.command = VelocityCommand()
@@ -169,6 +170,21 @@ class SimBridgeNode(Node):
         finally:
             if self.config.exit_when_done:
                 self.request_shutdown()
+
+
+def scenario_overrides(pairs: list[str]) -> dict[str, Any]:
+    """Dotted scenario settings from NAME=VALUE strings (values read as YAML)."""
+    import yaml
+
+    from ssf_common.errors import ConfigError
+
+    overrides: dict[str, Any] = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        if not sep or not name.strip():
+            raise ConfigError(f"scenario override {pair!r}: expected NAME=VALUE")
+        overrides[name.strip()] = yaml.safe_load(text)
+    return overrides
 
 
 def episode_summary(scenario: str, seed: int, status: Any, num_agents: int, step_ms: list[float]) -> dict[str, Any]:

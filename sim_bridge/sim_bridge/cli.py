@@ -1,0 +1,188 @@
+"""`ssf sim`, `ssf dataset export` and `ssf bench sim`."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+from ssf_common.cli import CommandGroups
+from ssf_common.errors import ConfigError, DataError
+
+
+def register(groups: CommandGroups) -> None:
+    """Add sim_bridge's commands."""
+    sim = groups.top.add_parser(
+        "sim",
+        help="run a simulator episode (offline core loop with the built-in driver)",
+        description="Run one episode of a scenario: the ego vehicle driven by the built-in route follower, "
+        "agents, LiDAR and ground truth, until success, collision, timeout or --duration; print the summary.",
+    )
+    sim.add_argument("--scenario", required=True, help="shipped scenario name or a YAML file")
+    sim.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
+    mode = sim.add_mutually_exclusive_group()
+    mode.add_argument("--lockstep", dest="realtime", action="store_false", help="step as fast as possible (default)")
+    mode.add_argument("--realtime", dest="realtime", action="store_true", help="pace steps at the wall clock")
+    sim.add_argument(
+        "--driver", choices=("follow", "none"), default="follow", help="built-in route follower or standing still"
+    )
+    sim.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
+    sim.add_argument(
+        "--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override, e.g. agents.count=20"
+    )
+    sim.add_argument("--render", type=Path, default=None, metavar="PNG", help="draw a top-down picture of the episode")
+    sim.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the episode summary as JSON")
+    sim.set_defaults(func=_sim, realtime=False)
+
+    dataset = groups.top.add_parser("dataset", help="simulator datasets with exact ground truth")
+    dataset_commands = dataset.add_subparsers(dest="dataset_command", metavar="WHAT", required=True)
+    export = dataset_commands.add_parser(
+        "export",
+        help="write frame pairs with ground-truth flow, a KITTI-style sequence and a JSON description",
+        description="Simulate FRAMES steps and write pairs/NNNNNN.npz (pc1 pc2 flow instance1 class1 dynamic1 "
+        "pose1 pose2), sequence/velodyne/*.bin + sequence/poses.txt and dataset.json under --out.",
+    )
+    export.add_argument("--scenario", required=True, help="shipped scenario name or a YAML file")
+    export.add_argument("--seed", type=int, default=None)
+    export.add_argument("--frames", type=int, required=True, help="number of consecutive pairs")
+    export.add_argument("--out", type=Path, required=True)
+    export.add_argument("--points", type=int, default=8192, help="points per downsampled scan (default 8192)")
+    export.add_argument("--sampling", choices=("random", "fps"), default="random")
+    export.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override")
+    export.set_defaults(func=_export)
+
+    bench = groups.bench.add_parser(
+        "sim",
+        help="simulator step time and memory per agent count",
+        description="Time one full step (agents, 64x1024 ray casting, ground truth, PointCloud2 + CDR) "
+        "per agent count.",
+    )
+    bench.add_argument("--agents", default="0,100,500,1000", help="comma-separated agent counts")
+    bench.add_argument("--steps", type=int, default=50, help="timed steps per agent count")
+    bench.add_argument("--warmup", type=int, default=20, help="untimed steps first, so traffic has formed (default 20)")
+    bench.add_argument("--scenario", default="crowd_1000", help="scenario whose agent count is varied")
+    bench.add_argument("--seed", type=int, default=None)
+    bench.add_argument("--json", type=Path, default=None, metavar="FILE")
+    bench.set_defaults(func=_bench)
+
+
+def _overrides(pairs: list[str]) -> dict[str, object]:
+    import yaml
+
+    overrides: dict[str, object] = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        if not sep or not name:
+            raise ConfigError(f"--set {pair!r}: expected NAME=VALUE")
+        overrides[name.strip()] = yaml.safe_load(text)
+    return overrides
+
+
+def _write_json(path: Path, payload: object) -> None:
+    try:
+        path.write_text(json.dumps(payload, indent=2) + "\n")
+    except OSError as err:
+        raise DataError(f"{path}: cannot write ({err.strerror})") from None
+
+
+def _sim(args: argparse.Namespace) -> int:
+    from sim_bridge.ego import VelocityCommand
+    from sim_bridge.scenario import load_scenario
+    from sim_bridge.simulator import Simulator
+
+    scenario = load_scenario(args.scenario, _overrides(args.set))
+    sim = Simulator(scenario, args.seed)
+    frame = sim.reset()
+    driver = sim.follower() if args.driver == "follow" else None
+    limit = scenario.episode.time_limit if args.duration is None else min(args.duration, scenario.episode.time_limit)
+    started = time.monotonic()
+    report_every = max(1, int(round(10.0 / sim.dt)))
+    while not sim.done and frame.status.time < limit - 1e-9:
+        command = (
+            driver.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
+            if driver
+            else VelocityCommand()
+        )
+        frame = sim.step(command)
+        if args.realtime:
+            time.sleep(max(0.0, started + frame.status.time - time.monotonic()))
+        if frame.index % report_every == 0:
+            status = frame.status
+            print(
+                f"t={status.time:6.1f} s  distance {status.distance:7.1f} m  speed {frame.ego.speed:5.2f} m/s",
+                file=sys.stderr,
+            )
+    status = frame.status
+    summary = {
+        "scenario": scenario.name,
+        "seed": sim.seed,
+        "agents": scenario.agents.count,
+        "outcome": status.outcome.name.lower(),
+        "time": round(status.time, 3),
+        "distance": round(status.distance, 3),
+        "average_speed": round(status.average_speed, 4),
+        "min_clearance": round(status.min_clearance, 4),
+        "collided_with": status.collided_with,
+        "route_length": round(sim.world.route_length, 2),
+        "wall_seconds": round(time.monotonic() - started, 2),
+    }
+    print(json.dumps(summary))
+    if args.json:
+        _write_json(args.json, summary)
+    if args.render:
+        from sim_bridge.render import render_episode
+
+        render_episode(sim, args.render)
+    return 0
+
+
+def _export(args: argparse.Namespace) -> int:
+    from sim_bridge.dataset.export import export
+    from sim_bridge.scenario import load_scenario
+
+    if args.frames < 1:
+        raise ConfigError(f"--frames must be at least 1, got {args.frames}")
+    if args.points < 1:
+        raise ConfigError(f"--points must be at least 1, got {args.points}")
+    scenario = load_scenario(args.scenario, _overrides(args.set))
+
+    def progress(done: int, total: int) -> None:
+        print(f"pair {done}/{total}", file=sys.stderr)
+
+    out = export(scenario, args.out, args.seed, args.frames, args.points, args.sampling, progress=progress)
+    print(out)
+    return 0
+
+
+def _bench(args: argparse.Namespace) -> int:
+    from sim_bridge.bench import run_bench
+    from sim_bridge.scenario import load_scenario
+
+    try:
+        counts = [int(value) for value in args.agents.split(",") if value.strip()]
+    except ValueError:
+        raise ConfigError(f"--agents {args.agents!r}: expected comma-separated integers") from None
+    if not counts or min(counts) < 0:
+        raise ConfigError(f"--agents {args.agents!r}: expected non-negative agent counts")
+    if args.steps < 1:
+        raise ConfigError(f"--steps must be at least 1, got {args.steps}")
+    load_scenario(args.scenario)  # fail fast on a bad name
+
+    def progress(row) -> None:
+        print(
+            f"{row.agents} agents: median {row.step_ms_median} ms, p95 {row.step_ms_p95} ms, "
+            f"peak RSS {row.peak_rss_mb} MB",
+            file=sys.stderr,
+        )
+
+    if args.warmup < 0:
+        raise ConfigError(f"--warmup must not be negative, got {args.warmup}")
+    rows = run_bench(args.scenario, counts, args.steps, args.seed, args.warmup, progress)
+    payload = [asdict(row) for row in rows]
+    print(json.dumps(payload, indent=2))
+    if args.json:
+        _write_json(args.json, payload)
+    return 0

@@ -1,0 +1,1 @@
+"""Dataset export of simulator frame pairs with exact ground truth, and readers for exported and KITTI data."""

@@ -1,0 +1,76 @@
+"""KITTI-odometry-style sequences: velodyne/*.bin (float32 x, y, z, intensity) plus poses.txt (3x4 rows)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from ssf_common import scan_io
+from ssf_common.errors import DataError
+
+
+def read_poses(path: str | Path) -> np.ndarray:
+    """Poses (N, 4, 4) from a KITTI poses.txt: one row of 12 numbers (a 3x4 matrix) per scan."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such poses file")
+    rows = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            values = np.array([float(value) for value in line.split()])
+        except ValueError:
+            raise DataError(f"{path}:{number}: not a row of numbers") from None
+        if values.size != 12 or not np.isfinite(values).all():
+            raise DataError(f"{path}:{number}: expected 12 finite numbers (a 3x4 pose), got {values.size}")
+        rows.append(values.reshape(3, 4))
+    poses = np.tile(np.eye(4), (len(rows), 1, 1))
+    if rows:
+        poses[:, :3, :] = np.stack(rows)
+    return poses
+
+
+def write_poses(path: str | Path, poses: np.ndarray) -> None:
+    """Write poses (N, 4, 4) as KITTI 3x4 rows."""
+    lines = [" ".join(f"{value:.9e}" for value in pose[:3, :].reshape(-1)) for pose in poses]
+    Path(path).write_text("\n".join(lines) + "\n")
+
+
+def read_bin(path: str | Path) -> np.ndarray:
+    """A KITTI .bin scan as float32 (N, 4): x, y, z, intensity."""
+    return scan_io.read_scan(path)
+
+
+def write_bin(path: str | Path, points: np.ndarray, intensity: np.ndarray) -> None:
+    """Write a KITTI .bin scan: float32 x, y, z, intensity."""
+    scan_io.write_bin(path, np.c_[points, intensity])
+
+
+class KittiSequence:
+    """A sequence folder with velodyne/*.bin and poses.txt (poses: world <- sensor of each scan)."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        velodyne = self.folder / "velodyne"
+        if not velodyne.is_dir():
+            raise DataError(f"{self.folder}: no velodyne/ folder (expected a KITTI odometry sequence)")
+        self.scan_paths = sorted(velodyne.glob("*.bin"))
+        if not self.scan_paths:
+            raise DataError(f"{velodyne}: no .bin scans")
+        self.poses = read_poses(self.folder / "poses.txt")
+        if len(self.poses) != len(self.scan_paths):
+            raise DataError(f"{self.folder}: {len(self.scan_paths)} scans but {len(self.poses)} poses in poses.txt")
+
+    def __len__(self) -> int:
+        return len(self.scan_paths)
+
+    def scan(self, index: int) -> np.ndarray:
+        """Scan index as float32 (N, 4): x, y, z, intensity in the sensor frame."""
+        return read_bin(self.scan_paths[index])
+
+    def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for index in range(len(self)):
+            yield self.scan(index), self.poses[index]

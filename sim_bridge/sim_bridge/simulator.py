@@ -1,0 +1,223 @@
+"""The simulator: world, traffic, ego vehicle, LiDAR and exact ground truth, stepped at dt in lockstep."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from sim_bridge.driver import RouteFollower
+from sim_bridge.ego import EgoState, EgoVehicle, Outcome, VelocityCommand
+from sim_bridge.footprints import Rectangles, rectangle_circle_distance, rectangle_distance
+from sim_bridge.ground_truth import FlowTruth, scene_flow
+from sim_bridge.lidar import Lidar, Scan
+from sim_bridge.scenario import Scenario
+from sim_bridge.traffic import AgentKind, AgentStates, EgoFootprint, Traffic, agent_mesh
+from sim_bridge.world import PointClass, World
+
+CLEARANCE_RADIUS = 30.0
+
+
+@dataclass(frozen=True)
+class EpisodeStatus:
+    """Where the episode stands: outcome so far, time, distance, average speed, min clearance."""
+
+    outcome: Outcome
+    time: float
+    distance: float
+    average_speed: float
+    min_clearance: float
+    collided_with: str = ""
+
+
+@dataclass(frozen=True)
+class Frame:
+    """Everything the simulator knows at one stamp."""
+
+    index: int
+    stamp_ns: int
+    scan: Scan
+    pose: np.ndarray  # (4, 4) world <- lidar
+    base_pose: np.ndarray  # (4, 4) world <- base_link
+    ego: EgoState
+    agents: AgentStates
+    flow: FlowTruth | None  # ground truth for the previous frame's scan (None on the first frame)
+    status: EpisodeStatus
+
+
+@dataclass
+class EpisodeLog:
+    """What the episode did, for summaries and pictures."""
+
+    trajectory: list[tuple[float, float]] = field(default_factory=list)
+    collisions: list[tuple[float, float, str]] = field(default_factory=list)
+
+
+class Simulator:
+    """Closed-loop LiDAR traffic simulator: `reset()`, then `step(cmd)` every dt; same seed, same frames."""
+
+    def __init__(self, scenario: Scenario, seed: int | None = None):
+        self.scenario = scenario
+        self.seed = scenario.seed if seed is None else int(seed)
+        self.dt = scenario.episode.dt
+        self.world = World(scenario, self.seed)
+        self.lidar = Lidar(scenario.lidar, self.world.static_mesh())
+        self.mount = np.eye(4)
+        self.mount[2, 3] = scenario.lidar.mount_height
+        self.lane_offset = self.world.lane_offset(scenario.ego.lane)
+        self.goal = self.world.centreline.to_xy(np.array(self.world.route_length), np.array(self.lane_offset))
+        self._frame: Frame | None = None
+
+    def reset(self) -> Frame:
+        """Start the episode: spawn agents, place the ego at the start, take the first scan."""
+        start_xy = self.world.centreline.to_xy(np.array(0.0), np.array(self.lane_offset))
+        heading = float(self.world.centreline.heading(np.array(0.0)))
+        self.ego = EgoVehicle(
+            self.scenario.ego, self.world.ground, EgoState(float(start_xy[0]), float(start_xy[1]), heading, 0.0, 0.0)
+        )
+        self.traffic = Traffic(self.world, self.scenario.agents, np.random.default_rng([self.seed, 2]), start_xy)
+        self._noise = np.random.default_rng([self.seed, 3])
+        self.index = 0
+        self.distance = 0.0
+        self.min_clearance = np.inf
+        self.outcome = Outcome.RUNNING
+        self.collided_with = ""
+        self.log = EpisodeLog()
+        self._frame = self._observe(None)
+        return self._frame
+
+    @property
+    def frame(self) -> Frame:
+        """The latest frame."""
+        if self._frame is None:
+            raise RuntimeError("call reset() first")
+        return self._frame
+
+    @property
+    def done(self) -> bool:
+        """Whether the episode has ended (success, collision or timeout)."""
+        return self.outcome != Outcome.RUNNING
+
+    def follower(self) -> RouteFollower:
+        """The built-in route follower for this scenario's ego lane and reference speed."""
+        cfg = self.scenario.ego
+        return RouteFollower(self.world, self.lane_offset, cfg.reference_speed, cfg.length, cfg.width)
+
+    def step(self, cmd: VelocityCommand) -> Frame:
+        """Advance dt: ego follows cmd, agents move, check the episode, scan, ground truth for the last scan."""
+        previous = self.frame
+        before = self.ego.state
+        if self.done:
+            self.ego.stop()
+        else:
+            self.ego.apply(cmd, self.dt)
+        state = self.ego.state
+        self.distance += float(np.hypot(state.x - before.x, state.y - before.y))
+        self.traffic.step(self.dt, self._ego_footprint())
+        self.index += 1
+        self._update_outcome()
+        self._frame = self._observe(previous)
+        return self._frame
+
+    def _ego_footprint(self) -> EgoFootprint:
+        s, cfg = self.ego.state, self.scenario.ego
+        velocity = s.speed * np.array([np.cos(s.yaw), np.sin(s.yaw)])
+        return EgoFootprint(np.array([s.x, s.y]), s.yaw, cfg.length, cfg.width, velocity)
+
+    def _update_outcome(self) -> None:
+        """Score the step: clearance, then collision, goal or time limit (the outcome is final once set)."""
+        if self.done:
+            return
+        clearance, hit = self._clearance()
+        self.min_clearance = min(self.min_clearance, clearance)
+        elapsed = self.index * self.dt
+        if hit:
+            self.outcome, self.collided_with = Outcome.COLLISION, hit
+            self.log.collisions.append((self.ego.state.x, self.ego.state.y, hit))
+            self.ego.stop()
+        elif self._at_goal():
+            self.outcome = Outcome.SUCCESS
+        elif elapsed >= self.scenario.episode.time_limit - 1e-9:
+            self.outcome = Outcome.TIMEOUT
+
+    def _at_goal(self) -> bool:
+        xy = np.array([self.ego.state.x, self.ego.state.y])
+        s, d = self.world.centreline.to_frenet(xy[None])
+        reached = np.linalg.norm(xy - self.goal) <= self.scenario.ego.goal_tolerance
+        passed = s[0] >= self.world.route_length and abs(d[0]) <= self.world.section.road_edge
+        return bool(reached or passed)
+
+    def _clearance(self) -> tuple[float, str]:
+        """Smallest distance from the ego footprint to any agent or structure, and what it touches."""
+        ego = self.ego.footprint()
+        centre = ego.centre[0]
+        names: list[str] = []
+        distances: list[np.ndarray] = []
+        agents = self.traffic.states()
+        near = np.flatnonzero(np.linalg.norm(agents.position[:, :2] - centre, axis=1) < CLEARANCE_RADIUS)
+        vehicles = near[agents.kind[near] == AgentKind.VEHICLE]
+        people = near[agents.kind[near] == AgentKind.PEDESTRIAN]
+        if len(vehicles):
+            others = Rectangles(
+                agents.position[vehicles, :2], agents.yaw[vehicles], agents.size[vehicles, 0], agents.size[vehicles, 1]
+            )
+            distances.append(rectangle_distance(ego.take(np.zeros(len(vehicles), int)), others))
+            names += [f"vehicle {agents.ids[i]}" for i in vehicles]
+        if len(people):
+            distances.append(
+                rectangle_circle_distance(
+                    ego.take(np.zeros(len(people), int)), agents.position[people, :2], agents.size[people, 0] / 2
+                )
+            )
+            names += [f"pedestrian {agents.ids[i]}" for i in people]
+        structure = self.world.structure
+        boxes, cylinders = self.world.structure_near(centre, CLEARANCE_RADIUS)
+        if len(boxes):
+            b = structure.boxes[boxes]
+            distances.append(
+                rectangle_distance(ego.take(np.zeros(len(boxes), int)), Rectangles(b[:, :2], b[:, 2], b[:, 3], b[:, 4]))
+            )
+            names += [f"structure {PointClass(structure.box_classes[i]).name.lower()}" for i in boxes]
+        if len(cylinders):
+            c = structure.cylinders[cylinders]
+            distances.append(rectangle_circle_distance(ego.take(np.zeros(len(cylinders), int)), c[:, :2], c[:, 2]))
+            names += [f"structure {PointClass(structure.cylinder_classes[i]).name.lower()}" for i in cylinders]
+        if not distances:
+            return CLEARANCE_RADIUS, ""
+        all_distances = np.concatenate(distances)
+        nearest = int(all_distances.argmin())
+        return float(all_distances[nearest]), names[nearest] if all_distances[nearest] <= 0.0 else ""
+
+    def _observe(self, previous: Frame | None) -> Frame:
+        """Scan from the current ego pose and, given the previous frame, the flow of its scan."""
+        base = self.ego.base_pose()
+        pose = base @ self.mount
+        agents = self.traffic.states()
+        dynamic = agent_mesh(agents, pose[:2, 3], self.scenario.lidar.max_range)
+        scan = self.lidar.scan(pose, dynamic, self._noise)
+        flow = None
+        if previous is not None:
+            flow = scene_flow(
+                previous.scan.points,
+                previous.scan.instance,
+                previous.pose,
+                pose,
+                previous.agents.poses(),
+                agents.poses(),
+            )
+        state = self.ego.state
+        self.log.trajectory.append((state.x, state.y))
+        elapsed = self.index * self.dt
+        status = EpisodeStatus(
+            self.outcome,
+            elapsed,
+            self.distance,
+            self.distance / elapsed if elapsed > 0 else 0.0,
+            float(self.min_clearance),
+            self.collided_with,
+        )
+        return Frame(self.index, int(round(self.index * self.dt * 1e9)), scan, pose, base, state, agents, flow, status)
+
+    def agent_surfaces(self, agents: AgentStates):
+        """Triangles of every agent (for checking ground truth against surfaces)."""
+        return agent_mesh(agents, np.zeros(2), np.inf)
