@@ -10,6 +10,7 @@ from dataclasses import asdict
 from pathlib import Path
 
 from ssf_common.cli import CommandGroups
+from sim_bridge.scenario import overrides_from_pairs
 from ssf_common.errors import ConfigError, DataError
 
 
@@ -17,18 +18,26 @@ def register(groups: CommandGroups) -> None:
     """Add sim_bridge's commands."""
     sim = groups.top.add_parser(
         "sim",
-        help="run a simulator episode (offline core loop with the built-in driver)",
-        description="Run one episode of a scenario: the ego vehicle driven by the built-in route follower, "
-        "agents, LiDAR and ground truth, until success, collision, timeout or --duration; print the summary.",
+        help="run the simulator node (scans, /clock and ground truth out, /cmd_vel in)",
+        description="Run one episode of a scenario as the sim_bridge node: publish scans, /clock and ground truth, "
+        "drive the ego with the built-in route follower (--driver follow) or with /cmd_vel (--driver none), "
+        "until success, collision, timeout or --duration; print the summary. --offline runs the same episode "
+        "without the middleware, as fast as the machine allows.",
     )
     sim.add_argument("--scenario", required=True, help="shipped scenario name or a YAML file")
     sim.add_argument("--seed", type=int, default=None, help="seed (default: the scenario's)")
     mode = sim.add_mutually_exclusive_group()
-    mode.add_argument("--lockstep", dest="realtime", action="store_false", help="step as fast as possible (default)")
-    mode.add_argument("--realtime", dest="realtime", action="store_true", help="pace steps at the wall clock")
-    sim.add_argument(
-        "--driver", choices=("follow", "none"), default="follow", help="built-in route follower or standing still"
+    mode.add_argument(
+        "--lockstep", dest="realtime", action="store_false",
+        help="each step waits for its /cmd_vel, or for --rate with the follower (default; deterministic)",
     )
+    mode.add_argument("--realtime", dest="realtime", action="store_true", help="step every 0.1 s of wall time")
+    sim.add_argument(
+        "--driver", choices=("follow", "none"), default="follow",
+        help="the built-in route follower, or none: obey /cmd_vel from a planner",
+    )
+    sim.add_argument("--rate", type=float, default=10.0, help="lockstep steps per second with the follower; 0 = flat out")
+    sim.add_argument("--offline", action="store_true", help="no middleware: the core loop only, as fast as possible")
     sim.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
     sim.add_argument(
         "--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override, e.g. agents.count=20"
@@ -69,18 +78,6 @@ def register(groups: CommandGroups) -> None:
     bench.set_defaults(func=_bench)
 
 
-def _overrides(pairs: list[str]) -> dict[str, object]:
-    import yaml
-
-    overrides: dict[str, object] = {}
-    for pair in pairs:
-        name, sep, text = pair.partition("=")
-        if not sep or not name:
-            raise ConfigError(f"--set {pair!r}: expected NAME=VALUE")
-        overrides[name.strip()] = yaml.safe_load(text)
-    return overrides
-
-
 def _write_json(path: Path, payload: object) -> None:
     try:
         path.write_text(json.dumps(payload, indent=2) + "\n")
@@ -89,11 +86,52 @@ def _write_json(path: Path, payload: object) -> None:
 
 
 def _sim(args: argparse.Namespace) -> int:
+    if not args.offline:
+        return _sim_node(args)
+    return _sim_offline(args)
+
+
+def _sim_node(args: argparse.Namespace) -> int:
+    from sim_bridge.node import SimBridgeNode
+    from sim_bridge.scenario import load_scenario
+    from ssf_common.middleware import run
+
+    load_scenario(args.scenario, overrides_from_pairs(args.set))  # a bad scenario is a CLI error, before any node starts
+
+    parameters: dict[str, object] = {
+        "scenario": args.scenario,
+        "mode": "realtime" if args.realtime else "lockstep",
+        "driver": args.driver,
+        "rate": args.rate,
+        "seed": -1 if args.seed is None else args.seed,
+        "duration_s": args.duration or 0.0,
+        "summary": str(args.json) if args.json else "",
+        "render": str(args.render) if args.render else "",
+    }
+    ros_args = ["--ros-args"]
+    for name, value in parameters.items():
+        if value != "":
+            ros_args += ["-p", f"{name}:={value}"]
+    if args.set:
+        ros_args += ["-p", "overrides:=[" + ", ".join(f"'{pair}'" for pair in args.set) + "]"]
+    nodes: list[SimBridgeNode] = []
+
+    def make_node(argv: list[str]) -> SimBridgeNode:
+        nodes.append(SimBridgeNode(argv=argv))
+        return nodes[-1]
+
+    code = run(make_node, ros_args)
+    if code == 0 and nodes and nodes[0].summary is not None:
+        print(json.dumps(nodes[0].summary))
+    return code
+
+
+def _sim_offline(args: argparse.Namespace) -> int:
     from sim_bridge.ego import VelocityCommand
     from sim_bridge.scenario import load_scenario
-    from sim_bridge.simulator import Simulator
+    from sim_bridge.simulator import Simulator, episode_summary
 
-    scenario = load_scenario(args.scenario, _overrides(args.set))
+    scenario = load_scenario(args.scenario, overrides_from_pairs(args.set))
     sim = Simulator(scenario, args.seed)
     frame = sim.reset()
     driver = sim.follower() if args.driver == "follow" else None
@@ -115,20 +153,7 @@ def _sim(args: argparse.Namespace) -> int:
                 f"t={status.time:6.1f} s  distance {status.distance:7.1f} m  speed {frame.ego.speed:5.2f} m/s",
                 file=sys.stderr,
             )
-    status = frame.status
-    summary = {
-        "scenario": scenario.name,
-        "seed": sim.seed,
-        "agents": scenario.agents.count,
-        "outcome": status.outcome.name.lower(),
-        "time": round(status.time, 3),
-        "distance": round(status.distance, 3),
-        "average_speed": round(status.average_speed, 4),
-        "min_clearance": round(status.min_clearance, 4),
-        "collided_with": status.collided_with,
-        "route_length": round(sim.world.route_length, 2),
-        "wall_seconds": round(time.monotonic() - started, 2),
-    }
+    summary = episode_summary(sim, time.monotonic() - started)
     print(json.dumps(summary))
     if args.json:
         _write_json(args.json, summary)
@@ -147,7 +172,7 @@ def _export(args: argparse.Namespace) -> int:
         raise ConfigError(f"--frames must be at least 1, got {args.frames}")
     if args.points < 1:
         raise ConfigError(f"--points must be at least 1, got {args.points}")
-    scenario = load_scenario(args.scenario, _overrides(args.set))
+    scenario = load_scenario(args.scenario, overrides_from_pairs(args.set))
 
     def progress(done: int, total: int) -> None:
         print(f"pair {done}/{total}", file=sys.stderr)

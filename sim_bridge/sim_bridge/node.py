@@ -11,9 +11,9 @@ from typing import Any
 from pydantic import Field
 
 from sim_bridge import ros_messages
-from sim_bridge.ego import Outcome, VelocityCommand
-from sim_bridge.scenario import load_scenario
-from sim_bridge.simulator import Frame, Simulator
+from sim_bridge.ego import VelocityCommand
+from sim_bridge.scenario import load_scenario, overrides_from_pairs
+from sim_bridge.simulator import Frame, Simulator, episode_summary
 from ssf_common import topics
 from ssf_common.config import Section
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA, Node, run
@@ -58,7 +58,7 @@ class SimBridgeNode(Node):
     def __init__(self, argv: list[str] | None = None) -> None:
         super().__init__("sim_bridge", argv=argv)
         self.config = self.declare_config(SimNodeConfig)
-        scenario = load_scenario(self.config.scenario, scenario_overrides(self.config.overrides))
+        scenario = load_scenario(self.config.scenario, overrides_from_pairs(self.config.overrides))
         self.sim = Simulator(scenario, None if self.config.seed < 0 else self.config.seed)
         self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
         self.command = VelocityCommand()
@@ -66,6 +66,7 @@ class SimBridgeNode(Node):
         self.published_at = 0.0
         self.step_ms: list[float] = []
         self.finished = False
+        self.summary: dict[str, Any] | None = None
         self.pub_clock = self.create_publisher("rosgraph_msgs/msg/Clock", topics.CLOCK, QOS_DEFAULT)
         self.pub_points = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, QOS_SENSOR_DATA)
         self.pub_truth = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.GT_FLOW, QOS_DEFAULT)
@@ -155,13 +156,12 @@ class SimBridgeNode(Node):
 
     def _finish(self, frame: Frame) -> None:
         self.finished = True
-        status = frame.status
         self.pub_episode.publish(self._result(frame))
-        summary = episode_summary(self.config.scenario, self.sim.seed, status, len(frame.agents), self.step_ms)
-        self.get_logger().info("episode over: " + json.dumps(summary))
+        self.summary = episode_summary(self.sim, time.monotonic() - self.created_at, self.step_ms)
+        self.get_logger().info("episode over: " + json.dumps(self.summary))
         if self.config.summary:
             Path(self.config.summary).parent.mkdir(parents=True, exist_ok=True)
-            Path(self.config.summary).write_text(json.dumps(summary, indent=2) + "\n")
+            Path(self.config.summary).write_text(json.dumps(self.summary, indent=2) + "\n")
         try:
             if self.config.render:
                 from sim_bridge.render import render_episode
@@ -170,39 +170,6 @@ class SimBridgeNode(Node):
         finally:
             if self.config.exit_when_done:
                 self.request_shutdown()
-
-
-def scenario_overrides(pairs: list[str]) -> dict[str, Any]:
-    """Dotted scenario settings from NAME=VALUE strings (values read as YAML)."""
-    import yaml
-
-    from ssf_common.errors import ConfigError
-
-    overrides: dict[str, Any] = {}
-    for pair in pairs:
-        name, sep, text = pair.partition("=")
-        if not sep or not name.strip():
-            raise ConfigError(f"scenario override {pair!r}: expected NAME=VALUE")
-        overrides[name.strip()] = yaml.safe_load(text)
-    return overrides
-
-
-def episode_summary(scenario: str, seed: int, status: Any, num_agents: int, step_ms: list[float]) -> dict[str, Any]:
-    """The JSON summary of an episode."""
-    import numpy as np
-
-    return {
-        "scenario": scenario,
-        "seed": seed,
-        "outcome": Outcome(int(status.outcome)).name.lower(),
-        "time_s": round(float(status.time), 3),
-        "distance_m": round(float(status.distance), 3),
-        "average_speed_mps": round(float(status.average_speed), 3),
-        "min_clearance_m": round(float(status.min_clearance), 3),
-        "collided_with": status.collided_with,
-        "agents": num_agents,
-        "step_ms_median": round(float(np.median(step_ms)), 2) if step_ms else None,
-    }
 
 
 def main(argv: list[str] | None = None) -> int:

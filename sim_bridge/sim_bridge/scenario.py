@@ -179,3 +179,16 @@ def load_scenario(name_or_path: str | Path, overrides: dict[str, Any] | None = N
 def with_agents(scenario: Scenario, count: int) -> Scenario:
     """A copy of a scenario with another agent count."""
     return build(Scenario, scenario.model_dump(), {"agents.count": count}, source=scenario.name)
+
+
+def overrides_from_pairs(pairs: list[str]) -> dict[str, Any]:
+    """Dotted scenario settings from NAME=VALUE strings (values read as YAML), as `--set` and the node take them."""
+    import yaml
+
+    overrides: dict[str, Any] = {}
+    for pair in pairs:
+        name, sep, text = pair.partition("=")
+        if not sep or not name.strip():
+            raise ConfigError(f"scenario override {pair!r}: expected NAME=VALUE")
+        overrides[name.strip()] = yaml.safe_load(text)
+    return overrides

@@ -221,3 +221,24 @@ class Simulator:
     def agent_surfaces(self, agents: AgentStates):
         """Triangles of every agent (for checking ground truth against surfaces)."""
         return agent_mesh(agents, np.zeros(2), np.inf)
+
+
+def episode_summary(sim: Simulator, wall_seconds: float, step_ms: list[float] | None = None) -> dict[str, object]:
+    """The JSON summary of an episode (what `ssf sim`, the node and `ssf demo` write)."""
+    status = sim.frame.status
+    summary: dict[str, object] = {
+        "scenario": sim.scenario.name,
+        "seed": sim.seed,
+        "agents": sim.scenario.agents.count,
+        "outcome": status.outcome.name.lower(),
+        "time": round(status.time, 3),
+        "distance": round(status.distance, 3),
+        "average_speed": round(status.average_speed, 4),
+        "min_clearance": round(status.min_clearance, 4),
+        "collided_with": status.collided_with,
+        "route_length": round(sim.world.route_length, 2),
+        "wall_seconds": round(wall_seconds, 2),
+    }
+    if step_ms:
+        summary["step_ms_median"] = round(float(np.median(step_ms)), 2)
+    return summary

@@ -66,7 +66,7 @@ def test_every_step_is_recorded_and_the_episode_summarised(recording):
     final = found["/sim/episode"][-1]
     assert final.scenario == "sparse_50" and abs(final.time - STEPS / 10) < 1e-9 and final.num_agents == 50
     summary = yaml.safe_load((recording / "episode.json").read_text())
-    assert summary["distance_m"] > 0 and summary["outcome"] in ("running", "success")
+    assert summary["distance"] > 0 and summary["outcome"] in ("running", "success")
     scan = cloud_to_array(found["/lidar/points"][0])
     assert {"x", "y", "z", "intensity", "ring", "time"} <= set(scan.dtype.names) and len(scan) > 10_000
 

@@ -1,0 +1,1 @@
+"""Scene flow cores: numpy in, numpy out, no ROS."""

@@ -1,0 +1,87 @@
+"""Point operations for the network: FPS, kNN without N x N matrices, gathering, inverse-distance interpolation."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+CHUNK = 1024
+
+
+def knn(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
+    """Indices (B, M, k) of the k nearest reference points (B, N, 3) of each query point (B, M, 3)."""
+    k = min(k, reference.shape[1])
+    if query.device.type == "cpu":
+        return knn_kdtree(query, reference, k)
+    return knn_chunked(query, reference, k)
+
+
+def knn_kdtree(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
+    """kNN by a KD-tree per batch element (CPU)."""
+    out = np.empty((query.shape[0], query.shape[1], k), dtype=np.int64)
+    for b in range(query.shape[0]):
+        _, index = cKDTree(reference[b].detach().numpy()).query(query[b].detach().numpy(), k=k)
+        out[b] = index.reshape(query.shape[1], k)
+    return torch.from_numpy(out)
+
+
+@torch.no_grad()
+def knn_chunked(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
+    """kNN by distance blocks of CHUNK query points at a time (any device)."""
+    parts = []
+    for start in range(0, query.shape[1], CHUNK):
+        block = torch.cdist(query[:, start:start + CHUNK], reference)
+        parts.append(block.topk(k, dim=2, largest=False).indices)
+    return torch.cat(parts, dim=1)
+
+
+def farthest_points(points: torch.Tensor, count: int) -> torch.Tensor:
+    """Indices (B, count) of farthest point sampling, started at each cloud's first point."""
+    if count >= points.shape[1]:
+        return torch.arange(points.shape[1], device=points.device).expand(points.shape[0], -1).clone()
+    if points.device.type == "cpu":
+        return torch.from_numpy(np.stack([farthest_numpy(cloud.detach().numpy(), count) for cloud in points]))
+    return farthest_torch(points, count)
+
+
+def farthest_numpy(points: np.ndarray, count: int) -> np.ndarray:
+    """FPS on one cloud through Open3D's C++ implementation, mapped back to indices."""
+    import open3d as o3d
+
+    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
+    chosen = np.asarray(cloud.farthest_point_down_sample(count).points)
+    _, index = cKDTree(points).query(chosen, k=1)
+    return index.astype(np.int64)
+
+
+@torch.no_grad()
+def farthest_torch(points: torch.Tensor, count: int) -> torch.Tensor:
+    """FPS in torch (for accelerators)."""
+    batch, size, _ = points.shape
+    chosen = torch.zeros(batch, count, dtype=torch.long, device=points.device)
+    distance = torch.full((batch, size), float("inf"), device=points.device)
+    current = torch.zeros(batch, dtype=torch.long, device=points.device)
+    rows = torch.arange(batch, device=points.device)
+    for i in range(count):
+        chosen[:, i] = current
+        distance = torch.minimum(distance, ((points - points[rows, current, None]) ** 2).sum(-1))
+        current = distance.argmax(dim=1)
+    return chosen
+
+
+def gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
+    """values (B, N, C) gathered at index (B, ...) -> (B, ..., C)."""
+    batch = values.shape[0]
+    flat = index.reshape(batch, -1)
+    picked = torch.gather(values, 1, flat.unsqueeze(-1).expand(-1, -1, values.shape[-1]))
+    return picked.reshape(*index.shape, values.shape[-1])
+
+
+def interpolate(source: torch.Tensor, values: torch.Tensor, target: torch.Tensor, k: int = 3) -> torch.Tensor:
+    """Inverse-distance kNN interpolation of values (B, N, C) at source points onto target points (B, M, 3)."""
+    index = knn(target, source, k)
+    distance = (gather(source, index) - target.unsqueeze(2)).norm(dim=-1).clamp_min(1e-6)
+    weight = 1.0 / distance
+    weight = weight / weight.sum(dim=-1, keepdim=True)
+    return (weight.unsqueeze(-1) * gather(values, index)).sum(dim=2)

@@ -1,0 +1,342 @@
+"""Learning-free real-time scene flow (ICP-Flow-like): ego motion, clusters, per-cluster rigid motion."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from pydantic import Field
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
+
+from ssf_common.config import Section
+from ssf_flow_node.core.base import FlowResult, finish, prepare
+from ssf_flow_node.core.preprocess import PreprocessConfig, height_above_ground
+from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, transform_points
+
+NEIGHBOUR_OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
+                              if (dx, dy, dz) > (0, 0, 0)], dtype=np.int64)
+
+
+class RigidConfig(Section):
+    """Clustering and per-cluster registration of the learning-free estimator."""
+
+    cluster_voxel: float = Field(0.5, gt=0.0, description="voxel edge (m) of the connected-component clustering")
+    min_cluster_points: int = Field(10, ge=3, description="points needed in each scan to register a cluster")
+    max_step: float = Field(3.0, gt=0.0, description="largest object displacement per frame (m)")
+    histogram_bin: float = Field(0.3, gt=0.0, description="bin (m) of the translation histogram")
+    histogram_points: int = Field(32, ge=4, description="points per scan and cluster in the translation histogram")
+    histogram_peaks: int = Field(4, ge=1, description="histogram peaks tried as initial translations")
+    point_weight: float = Field(0.3, ge=0.0, description="weight of point-to-point next to point-to-plane residuals")
+    plane: bool = Field(True, description="register objects point-to-plane (normals of scan t+1) instead of point-to-point")
+    point_weight: float = Field(0.3, ge=0.0, description="weight of point-to-point next to point-to-plane residuals")
+    plane: bool = Field(True, description="register objects point-to-plane (normals of scan t+1) instead of point-to-point")
+    max_yaw: float = Field(0.1, ge=0.0, description="largest object rotation per frame (rad)")
+    icp_iterations: int = Field(5, ge=1, description="iterations of the batched per-cluster ICP")
+    icp_gates: tuple[float, float] = Field((1.0, 0.3), description="correspondence gate (m), first and last iteration")
+    residual_cap: float = Field(1.0, gt=0.0, description="nearest-neighbour residuals are truncated here (m)")
+    min_gain: float = Field(0.2, ge=0.0, le=1.0, description="share of the static hypothesis' residual a motion must remove")
+    min_motion: float = Field(0.05, ge=0.0, description="cluster motions below this (m) are static")
+    attach_height: float = Field(0.08, ge=0.0, description="points below ground_height but above this may belong to objects (m)")
+    attach_distance: float = Field(0.6, ge=0.0, description="such low points this close to a moving cluster move with it (m)")
+    mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
+
+
+class Clusters(NamedTuple):
+    """Cluster label per non-ground point of each scan (-1: none) and the number of clusters."""
+
+    labels1: np.ndarray
+    labels2: np.ndarray
+    count: int
+
+
+class ClusterMotions(NamedTuple):
+    """Per cluster: rotation about z, translation (in scan t+1's frame, after ego compensation), moving flag."""
+
+    yaw: np.ndarray
+    translation: np.ndarray
+    moving: np.ndarray
+
+
+class RigidFlowEstimator:
+    """Ego motion by robust ICP, then rigid motions of clusters of the non-ground points."""
+
+    name = "rigid"
+
+    def __init__(self, preprocess: PreprocessConfig, registration: RegistrationConfig, config: RigidConfig) -> None:
+        self.preprocess = preprocess
+        self.registration = registration
+        self.config = config
+
+    def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
+        """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration."""
+        pair = prepare(pc1, pc2, mask, self.preprocess)
+        points1, points2 = pair.sample1.points, pair.sample2.points
+        dynamic = None if pair.mask is None else pair.mask > self.config.mask_threshold
+        # 1. ego motion from the (presumably) static points
+        matcher = ScanMatcher(points2, self.registration)
+        ego = matcher.align(points1 if dynamic is None else points1[~dynamic])
+        compensated = transform_points(ego, points1)
+        # 2. drop the ground, cluster the rest of both scans together
+        height1 = height_above_ground(points1, self.preprocess.ground_cell)
+        above1 = height1 >= self.preprocess.ground_height
+        above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
+        clusters = joint_clusters(compensated[above1], points2[above2], self.config.cluster_voxel)
+        # 3. rigid motion of each cluster, histogram-initialised ICP, kept only where it explains the data
+        normals2 = matcher.normals()[above2] if self.config.plane else None
+        motions = cluster_motions(compensated[above1], points2[above2], clusters, self.config,
+                                  None if dynamic is None else pair.mask[above1], normals2)
+        # 4. refine the ego motion on the points that turned out static
+        static = ~on_moving_clusters(above1, clusters.labels1, motions.moving)
+        if dynamic is not None:
+            static &= ~dynamic
+        ego = matcher.align(points1[static], ego, (self.registration.refine_distance,))
+        compensated = transform_points(ego, points1)
+        # 5. every point moves with its cluster (ground-flagged points touching a moving cluster too), or with the scene
+        labels = np.full(points1.shape[0], -1)
+        labels[above1] = clusters.labels1
+        low = ~above1 & (height1 > self.config.attach_height)
+        labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions.moving,
+                                       self.config.attach_distance)
+        moved = apply_motions(compensated, labels, motions)
+        return finish(pair, moved - points1, ego, self.preprocess.propagate_k)
+
+
+def on_moving_clusters(clustered: np.ndarray, labels: np.ndarray, moving: np.ndarray) -> np.ndarray:
+    """Flags over all points: the clustered ones (mask `clustered`) whose cluster moves."""
+    flags = np.zeros(clustered.shape[0], dtype=bool)
+    flags[np.flatnonzero(clustered)] = (labels >= 0) & moving[np.maximum(labels, 0)]
+    return flags
+
+
+def joint_clusters(points1: np.ndarray, points2: np.ndarray, voxel: float) -> Clusters:
+    """Connected components of the occupied voxels of both (ego-compensated) scans together."""
+    points = np.concatenate([points1, points2])
+    if points.shape[0] == 0:
+        return Clusters(np.full(0, -1), np.full(0, -1), 0)
+    keys = np.floor(points / voxel).astype(np.int64)
+    keys -= keys.min(axis=0) - 1
+    span = keys.max(axis=0) + 2
+    codes = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    voxels, inverse = np.unique(codes, return_inverse=True)
+    strides = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
+    rows, cols = [], []
+    for offset in NEIGHBOUR_OFFSETS @ strides:
+        position = np.minimum(np.searchsorted(voxels, voxels + offset), voxels.size - 1)
+        found = voxels[position] == voxels + offset
+        rows.append(np.flatnonzero(found))
+        cols.append(position[found])
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(voxels.size, voxels.size))
+    count, component = connected_components(graph, directed=False)
+    labels = component[inverse]
+    return Clusters(labels[: points1.shape[0]], labels[points1.shape[0]:], int(count))
+
+
+def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, active: np.ndarray,
+                         config: RigidConfig, tree: cKDTree, rng: np.random.Generator) -> np.ndarray:
+    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram."""
+    count = clusters.count
+    picks1 = pick_per_cluster(clusters.labels1, active, config.histogram_points, rng)
+    picks2 = pick_per_cluster(clusters.labels2, active, config.histogram_points, rng)
+    candidates = [np.zeros((count, 3)), centroid_shift(points1, points2, clusters, count)]
+    if picks1.size and picks2.size:
+        candidates += histogram_peaks(points1, points2, clusters, picks1, picks2, config)
+    labels = clusters.labels1[picks1]
+    scores = np.stack([truncated_residual(points1[picks1] + shift[labels], labels, tree, clusters.labels2,
+                                          config.residual_cap, count) for shift in candidates])
+    best = scores.argmin(axis=0)
+    return np.stack(candidates)[best, np.arange(count)]
+
+
+def centroid_shift(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, count: int) -> np.ndarray:
+    """Per cluster, the horizontal shift between its centroids in the two scans."""
+    shift = np.zeros((count, 3))
+    for axis in (0, 1):
+        mean1 = np.bincount(clusters.labels1, points1[:, axis], count) / np.maximum(np.bincount(clusters.labels1, minlength=count), 1)
+        mean2 = np.bincount(clusters.labels2, points2[:, axis], count) / np.maximum(np.bincount(clusters.labels2, minlength=count), 1)
+        shift[:, axis] = mean2 - mean1
+    return shift
+
+
+def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, picks1: np.ndarray,
+                    picks2: np.ndarray, config: RigidConfig) -> list[np.ndarray]:
+    """Per cluster, the `peaks` most frequent horizontal displacements between its points in the two scans."""
+    count = clusters.count
+    picks2 = picks2[np.argsort(clusters.labels2[picks2], kind="stable")]
+    labels2 = clusters.labels2[picks2]
+    starts = np.searchsorted(labels2, clusters.labels1[picks1], side="left")
+    lengths = np.searchsorted(labels2, clusters.labels1[picks1], side="right") - starts
+    first = np.repeat(picks1, lengths)
+    second = picks2[np.repeat(starts, lengths) + ragged_arange(lengths)]
+    displacement = points2[second, :2] - points1[first, :2]
+    near = np.linalg.norm(displacement, axis=1) <= config.max_step
+    first, displacement = first[near], displacement[near]
+    half = int(np.ceil(config.max_step / config.histogram_bin)) + 1
+    width = 2 * half + 1
+    cells = np.round(displacement / config.histogram_bin).astype(np.int64) + half
+    codes = clusters.labels1[first] * width * width + cells[:, 0] * width + cells[:, 1]
+    unique, votes = np.unique(codes, return_counts=True)
+    cluster_of = unique // (width * width)
+    order = np.lexsort((-votes, cluster_of))
+    rank = np.arange(order.size) - np.searchsorted(cluster_of[order], cluster_of[order], side="left")
+    peaks = []
+    for level in range(config.histogram_peaks):
+        chosen = order[rank == level]
+        shift = np.zeros((count, 3))
+        cell = unique[chosen] % (width * width)
+        shift[cluster_of[chosen], 0] = (cell // width - half) * config.histogram_bin
+        shift[cluster_of[chosen], 1] = (cell % width - half) * config.histogram_bin
+        peaks.append(shift)
+    return peaks
+
+
+def pick_per_cluster(labels: np.ndarray, active: np.ndarray, per_cluster: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to `per_cluster` random point indices from each active cluster."""
+    candidates = np.flatnonzero((labels >= 0) & active[np.maximum(labels, 0)])
+    shuffled = candidates[rng.permutation(candidates.size)]
+    order = np.argsort(labels[shuffled], kind="stable")
+    ordered = shuffled[order]
+    sorted_labels = labels[ordered]
+    rank = np.arange(ordered.size) - np.searchsorted(sorted_labels, sorted_labels, side="left")
+    return ordered[rank < per_cluster]
+
+
+def ragged_arange(lengths: np.ndarray) -> np.ndarray:
+    """Concatenation of arange(n) for each n in lengths."""
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    offsets = np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.arange(total) - offsets
+
+
+def planar_kabsch(source: np.ndarray, target: np.ndarray, labels: np.ndarray, count: int,
+                  max_yaw: float = np.pi) -> tuple[np.ndarray, np.ndarray]:
+    """Per label, the yaw (at most max_yaw) and translation that best map source onto target (rotation about z)."""
+    n = np.bincount(labels, minlength=count).astype(np.float64)
+    safe = np.maximum(n, 1.0)[:, None]
+    mean_s = np.stack([np.bincount(labels, source[:, i], count) for i in range(3)], axis=1) / safe
+    mean_t = np.stack([np.bincount(labels, target[:, i], count) for i in range(3)], axis=1) / safe
+    s = source - mean_s[labels]
+    t = target - mean_t[labels]
+    cos_term = np.bincount(labels, s[:, 0] * t[:, 0] + s[:, 1] * t[:, 1], count)
+    sin_term = np.bincount(labels, s[:, 0] * t[:, 1] - s[:, 1] * t[:, 0], count)
+    yaw = np.clip(np.arctan2(sin_term, cos_term), -max_yaw, max_yaw)
+    c, si = np.cos(yaw), np.sin(yaw)
+    rotated = np.stack([c * mean_s[:, 0] - si * mean_s[:, 1], si * mean_s[:, 0] + c * mean_s[:, 1], mean_s[:, 2]], axis=1)
+    return yaw, mean_t - rotated
+
+
+def rotate_translate(points: np.ndarray, yaw: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Apply per-point yaw (about z) and translation."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * points[:, 0] - s * points[:, 1] + translation[:, 0],
+                     s * points[:, 0] + c * points[:, 1] + translation[:, 1],
+                     points[:, 2] + translation[:, 2]], axis=1)
+
+
+def truncated_residual(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray, cap: float,
+                       count: int) -> np.ndarray:
+    """Per cluster, the mean distance of its points to the same cluster in scan t+1, each capped at `cap`."""
+    gap, index = tree.query(moved, distance_upper_bound=cap)
+    hit = np.isfinite(gap)
+    hit[hit] = labels2[index[hit]] == labels[hit]
+    residual = np.where(hit, gap, cap)
+    return np.bincount(labels, residual, count) / np.maximum(np.bincount(labels, minlength=count), 1)
+
+
+def plane_step(moved: np.ndarray, target: np.ndarray, normals: np.ndarray, labels: np.ndarray, yaw: np.ndarray,
+               translation: np.ndarray, count: int, config: RigidConfig) -> tuple[np.ndarray, np.ndarray]:
+    """One Gauss-Newton step per cluster on point-to-plane (plus a little point-to-point) residuals: yaw about the
+    cluster centre and a translation."""
+    sizes = np.maximum(np.bincount(labels, minlength=count), 1).astype(np.float64)
+    centre = np.stack([np.bincount(labels, moved[:, i], count) for i in range(3)], axis=1) / sizes[:, None]
+    offset = moved - centre[labels]
+    lever = np.column_stack([-offset[:, 1], offset[:, 0], np.zeros(len(offset))])
+    error = moved - target
+    plane_row = np.column_stack([normals, (normals * lever).sum(axis=1)])  # (n, 4)
+    plane_error = (normals * error).sum(axis=1)
+    weight = config.point_weight
+    hessian = np.einsum("ni,nj->nij", plane_row, plane_row)
+    hessian[:, :3, :3] += weight * np.eye(3)
+    hessian[:, :3, 3] += weight * lever
+    hessian[:, 3, :3] += weight * lever
+    hessian[:, 3, 3] += weight * (lever ** 2).sum(axis=1)
+    gradient = plane_row * plane_error[:, None]
+    gradient[:, :3] += weight * error
+    gradient[:, 3] += weight * (lever * error).sum(axis=1)
+    system = np.stack([np.bincount(labels, hessian[:, i, j], count) for i in range(4) for j in range(4)], axis=1)
+    system = system.reshape(count, 4, 4) + 1e-3 * np.eye(4)
+    rhs = np.stack([np.bincount(labels, gradient[:, i], count) for i in range(4)], axis=1)
+    step = -np.linalg.solve(system, rhs[:, :, None])[:, :, 0]
+    turn = np.clip(yaw + step[:, 3], -config.max_yaw, config.max_yaw) - yaw
+    c, s = np.cos(turn), np.sin(turn)
+    relative = translation - centre
+    rotated = np.column_stack([c * relative[:, 0] - s * relative[:, 1], s * relative[:, 0] + c * relative[:, 1], relative[:, 2]])
+    return yaw + turn, rotated + centre + step[:, :3]
+
+
+def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
+                    mask: np.ndarray | None, normals2: np.ndarray | None = None) -> ClusterMotions:
+    """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better."""
+    count = clusters.count
+    yaw, translation = np.zeros(count), np.zeros((count, 3))
+    if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
+        return ClusterMotions(yaw, translation, np.zeros(count, dtype=bool))
+    sizes1 = np.bincount(clusters.labels1, minlength=count)
+    sizes2 = np.bincount(clusters.labels2, minlength=count)
+    active = (sizes1 >= config.min_cluster_points) & (sizes2 >= config.min_cluster_points)
+    belief = None
+    if mask is not None:
+        belief = np.bincount(clusters.labels1, mask, count) / np.maximum(sizes1, 1)
+        active &= belief > 1.0 - config.mask_threshold  # clusters the mask calls static move with the scene
+    tree = cKDTree(points2)
+    translation = initial_translations(points1, points2, clusters, active, config, tree, np.random.default_rng(0))
+    members = np.flatnonzero(active[clusters.labels1])
+    source, labels = points1[members], clusters.labels1[members]
+    gates = np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations)
+    for gate in gates:
+        moved = rotate_translate(source, yaw[labels], translation[labels])
+        gap, index = tree.query(moved, distance_upper_bound=gate)
+        good = np.isfinite(gap)
+        good[good] = clusters.labels2[index[good]] == labels[good]
+        fitted = np.bincount(labels[good], minlength=count) >= 3
+        if normals2 is None:
+            new_yaw, new_translation = planar_kabsch(source[good], points2[index[good]], labels[good], count, config.max_yaw)
+        else:
+            new_yaw, new_translation = plane_step(moved[good], points2[index[good]], normals2[index[good]], labels[good],
+                                                  yaw, translation, count, config)
+        yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
+    moved = rotate_translate(source, yaw[labels], translation[labels])
+    residual_moving = truncated_residual(moved, labels, tree, clusters.labels2, config.residual_cap, count)
+    residual_static = truncated_residual(source, labels, tree, clusters.labels2, config.residual_cap, count)
+    shift = np.stack([np.bincount(labels, (moved - source)[:, i], count) for i in range(3)], axis=1)
+    displacement = np.linalg.norm(shift, axis=1) / np.maximum(np.bincount(labels, minlength=count), 1)
+    moving = active & (displacement > config.min_motion) & (residual_moving < (1.0 - config.min_gain) * residual_static)
+    if belief is not None:
+        moving |= active & (displacement > config.min_motion) & (belief > config.mask_threshold)
+    yaw[~moving], translation[~moving] = 0.0, 0.0
+    return ClusterMotions(yaw, translation, moving)
+
+
+def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, moving: np.ndarray,
+                     distance: float) -> np.ndarray:
+    """Label of the moving cluster within `distance` of each point (-1 where none)."""
+    attached = np.full(points.shape[0], -1)
+    on_moving = (labels >= 0) & moving[np.maximum(labels, 0)]
+    if not on_moving.any() or points.shape[0] == 0:
+        return attached
+    gap, index = cKDTree(clustered[on_moving]).query(points, distance_upper_bound=distance)
+    near = np.isfinite(gap)
+    attached[near] = labels[on_moving][index[near]]
+    return attached
+
+
+def apply_motions(points: np.ndarray, labels: np.ndarray, motions: ClusterMotions) -> np.ndarray:
+    """Move each clustered point with its cluster's motion."""
+    moved = points.copy()
+    on = labels >= 0
+    moved[on] = rotate_translate(points[on], motions.yaw[labels[on]], motions.translation[labels[on]])
+    return moved.astype(np.float32)

@@ -1,0 +1,75 @@
+"""Shared pre-processing: crop, downsampling, ground split, flow propagation, input validation."""
+
+import numpy as np
+import pytest
+
+from ssf_common.errors import DataError
+from ssf_flow_node.core.preprocess import (PreprocessConfig, Sampling, check_mask, check_scan, downsample,
+                                           ground_mask, propagate, propagate_to_scan)
+
+
+def scan(count=20000, seed=0):
+    rng = np.random.default_rng(seed)
+    return (rng.uniform(-40, 40, (count, 3)) * [1, 1, 0.05]).astype(np.float32)
+
+
+@pytest.mark.parametrize("sampling", list(Sampling))
+def test_downsample_keeps_at_most_n_points_inside_range(sampling):
+    points = scan()
+    config = PreprocessConfig(points=2048, sampling=sampling, max_range=30.0, min_range=2.0, voxel_size=0.5)
+    sample = downsample(points, config, np.random.default_rng(0))
+    assert 0 < len(sample.indices) <= 2048
+    assert np.array_equal(sample.points, points[sample.indices])
+    distance = np.linalg.norm(sample.points[:, :2], axis=1)
+    assert distance.min() >= 2.0 and distance.max() <= 30.0
+    assert len(np.unique(sample.indices)) == len(sample.indices)
+
+
+def test_small_scans_are_kept_whole():
+    points = scan(500)
+    sample = downsample(points, PreprocessConfig(points=8192, max_range=100.0), np.random.default_rng(0))
+    assert len(sample.indices) == 500
+
+
+def test_propagation_is_exact_on_sampled_points_and_smooth_elsewhere():
+    points = scan(5000)
+    sample = downsample(points, PreprocessConfig(points=1000, max_range=100.0), np.random.default_rng(1))
+    flow = propagate_to_scan(points, sample, np.tile([1.0, 2.0, 3.0], (1000, 1)).astype(np.float32))
+    assert flow.shape == (5000, 3)
+    assert np.allclose(flow, [1.0, 2.0, 3.0], atol=1e-5)
+    linear = sample.points[:, :1] * np.ones((1, 3), np.float32)
+    flow = propagate_to_scan(points, sample, linear, k=1)
+    assert np.allclose(flow[sample.indices], linear)
+
+
+def test_propagate_inverse_distance():
+    source = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    values = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    out = propagate(source, values, np.array([[0.25, 0, 0]]), k=2)
+    # weights 1/0.25 and 1/0.75 -> 0.75 and 0.25
+    assert out[0, 0] == pytest.approx(0.25)
+
+
+def test_ground_mask_separates_ground_and_box():
+    rng = np.random.default_rng(0)
+    ground = np.column_stack([rng.uniform(-20, 20, (4000, 2)), rng.normal(-1.8, 0.02, 4000)])
+    box = np.column_stack([rng.uniform(4, 6, (500, 2)), rng.uniform(-1.2, 0.0, 500)])
+    flags = ground_mask(np.concatenate([ground, box]))
+    assert flags[:4000].mean() > 0.97
+    assert flags[4000:].mean() < 0.05
+
+
+def test_bad_scans_and_masks_are_one_line_errors():
+    with pytest.raises(DataError, match="shape"):
+        check_scan(np.zeros((10, 2)), "scan t")
+    with pytest.raises(DataError, match="empty"):
+        check_scan(np.zeros((0, 3)), "scan t")
+    with pytest.raises(DataError, match="NaN"):
+        check_scan(np.array([[0.0, np.nan, 0.0]]), "scan t")
+    with pytest.raises(DataError, match="expected 5"):
+        check_mask(np.zeros(4), 5)
+    with pytest.raises(DataError, match=r"\[0, 1\]"):
+        check_mask(np.full(5, 2.0), 5)
+    assert check_mask(np.ones((5, 1), bool), 5).dtype == np.float32
+    with pytest.raises(DataError, match="no points"):
+        downsample(np.full((10, 3), 500.0, np.float32), PreprocessConfig(), np.random.default_rng(0))
