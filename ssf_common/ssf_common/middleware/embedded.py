@@ -309,42 +309,6 @@ class EmbeddedBackend:
         if Participant._instance is self._participant:
             self._participant.remove_node(*self._node)
 
-    def update_node(self, namespace: str, name: str, readers: list[bytes], writers: list[bytes]) -> None:
-        """Record a node's endpoints and announce them on ros_discovery_info (what `ros2 node list` reads)."""
-        with self._discovery_lock:
-            self._nodes[(namespace, name)] = (list(readers), list(writers))
-            self._announce()
-
-    def remove_node(self, namespace: str, name: str) -> None:
-        """Forget a node and announce it."""
-        with self._discovery_lock:
-            if self._nodes.pop((namespace, name), None) is not None:
-                self._announce()
-
-    def _announce(self) -> None:
-        import numpy as np
-        from cyclonedds.pub import DataWriter
-
-        type_name = "rmw_dds_common/msg/ParticipantEntitiesInfo"
-        if self._discovery_writer is None:
-            qos = dds_qos(QOS_DISCOVERY, type_name)
-            topic = self.topic("", type_name, dds_name="ros_discovery_info")
-            self._discovery_writer = DataWriter(self.dp, topic, qos)
-        gid = messages.msg_type("rmw_dds_common/msg/Gid")
-        node_info = messages.msg_type("rmw_dds_common/msg/NodeEntitiesInfo")
-
-        def gids(guids: list[bytes]) -> list[Any]:
-            return [gid(data=np.frombuffer(guid, dtype=np.uint8).copy()) for guid in guids]
-
-        info = messages.msg_type(type_name)(
-            gid=gid(data=np.frombuffer(self.dp.guid.bytes, dtype=np.uint8).copy()),
-            node_entities_info_seq=[
-                node_info(node_namespace=ns, node_name=name, reader_gid_seq=gids(r), writer_gid_seq=gids(w))
-                for (ns, name), (r, w) in sorted(self._nodes.items())
-            ],
-        )
-        write_raw(self._discovery_writer, messages.serialize(info), "ros_discovery_info")
-
     def topic_names_and_types(self) -> list[tuple[str, list[str]]]:
         """Topics offered on the domain."""
         return Participant.get().topic_names_and_types()
