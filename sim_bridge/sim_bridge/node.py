@@ -19,6 +19,9 @@ from ssf_common.config import Section
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA, Node, run
 
 
+DISCOVERY_SETTLE_S = 0.5
+
+
 class Mode(str, Enum):
     """How simulated time relates to commands and the wall clock."""
 
@@ -78,6 +81,7 @@ class SimBridgeNode(Node):
         self.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_cmd_vel, QOS_DEFAULT)
         self.time_limit = self.config.duration_s or scenario.episode.time_limit
         self.started = False
+        self.readers_since: float | None = None
         self.created_at = time.monotonic()
         self.sim.reset()
         self.create_timer(self._tick_period(), self.tick)
@@ -126,9 +130,17 @@ class SimBridgeNode(Node):
 
     def _start_when_readers_joined(self) -> None:
         readers = self.pub_points.get_subscription_count()
-        waited = time.monotonic() - self.created_at
+        now = time.monotonic()
+        waited = now - self.created_at
         if readers < self.config.wait_for_subscribers and waited < self.config.wait_timeout_s:
+            self.readers_since = None
             return
+        if self.config.wait_for_subscribers and readers >= self.config.wait_for_subscribers:
+            # Our writer has seen the readers; give them the moment they need to see our writer,
+            # or the first best-effort scans are dropped on their side.
+            self.readers_since = self.readers_since or now
+            if now - self.readers_since < DISCOVERY_SETTLE_S:
+                return
         if readers < self.config.wait_for_subscribers:
             self.get_logger().warning(f"starting with {readers} of {self.config.wait_for_subscribers} scan readers")
         self.started = True
