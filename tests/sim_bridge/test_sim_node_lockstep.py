@@ -1,0 +1,70 @@
+"""sim_bridge in lockstep with --driver none: each step waits for its /cmd_vel, or applies the last one on timeout."""
+
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from sim_bridge.node import SimBridgeNode
+from ssf_common import messages
+from ssf_common.middleware import QOS_SENSOR_DATA, Node
+
+SMALL = "['route.waypoints=[[0,0],[80,0]]', 'ground.margin=30', 'lidar.columns=128', 'agents.count=0']"
+
+
+def wait_until(predicate, timeout_s: float = 20.0) -> bool:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and not predicate():
+        time.sleep(0.01)
+    return predicate()
+
+
+@pytest.fixture
+def lockstep_graph():
+    def start(timeout_s: float):
+        sim = SimBridgeNode(argv=[
+            "--ros-args", "-p", "scenario:=empty", "-p", f"overrides:={SMALL}", "-p", "driver:=none",
+            "-p", "mode:=lockstep", "-p", f"command_timeout_s:={timeout_s}", "-p", "wait_for_subscribers:=1",
+            "-p", "markers:=false", "-p", "exit_when_done:=false",
+        ])
+        sim.spin_in_thread()
+        planner = Node("planner")
+        scans: list = []
+        planner.create_subscription("sensor_msgs/msg/PointCloud2", "/lidar/points", scans.append, QOS_SENSOR_DATA)
+        planner.spin_in_thread()
+        cmd = planner.create_publisher("geometry_msgs/msg/Twist", "/cmd_vel")
+        started.extend([sim, planner])
+        assert wait_until(lambda: len(scans) == 1 and cmd.get_subscription_count() > 0)
+        return sim, scans, cmd
+
+    started: list = []
+    yield start
+    for node in started:
+        node.request_shutdown()
+        node.destroy_node()
+
+
+def twist(speed: float):
+    vector = messages.msg_type("geometry_msgs/msg/Vector3")
+    return messages.msg_type("geometry_msgs/msg/Twist")(linear=vector(x=speed, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0))
+
+
+def test_each_step_waits_for_its_command(lockstep_graph):
+    sim, scans, cmd = lockstep_graph(timeout_s=30.0)
+    time.sleep(0.5)
+    assert len(scans) == 1 and sim.sim.frame.index == 0  # no command, no step
+    for step in range(1, 6):
+        cmd.publish(twist(2.0))
+        assert wait_until(lambda: len(scans) == step + 1), f"step {step} did not follow its command"
+        assert sim.sim.frame.index == step
+    stamps = [messages.stamp_ns(scan.header.stamp) for scan in scans]
+    assert stamps == [i * 100_000_000 for i in range(6)]
+    assert sim.sim.frame.ego.speed > 0.5  # the commanded speed, within the acceleration limit
+
+
+def test_without_commands_the_last_one_applies_after_the_timeout(lockstep_graph):
+    sim, scans, cmd = lockstep_graph(timeout_s=0.2)
+    cmd.publish(twist(3.0))
+    assert wait_until(lambda: len(scans) >= 6, timeout_s=20.0)  # later steps come from the timeout
+    assert sim.sim.frame.ego.speed > 1.0  # still driving with the last command
