@@ -139,8 +139,8 @@ class Launcher:
             self._spawn(managed)
 
     def _spawn(self, managed: ManagedProcess) -> None:
-        # One BLAS thread per node: several single-threaded nodes share the cores.
-        env = {"OPENBLAS_NUM_THREADS": "1", **os.environ, **managed.spec.environment, "PYTHONUNBUFFERED": "1"}
+        # One BLAS/OpenMP thread per node unless the user says otherwise: several nodes share the cores.
+        env = {"OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", **os.environ, **managed.spec.environment, "PYTHONUNBUFFERED": "1"}
         managed.process = subprocess.Popen(
             managed.argv,
             stdout=subprocess.PIPE,

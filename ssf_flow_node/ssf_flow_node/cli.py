@@ -48,7 +48,7 @@ def register(groups: CommandGroups) -> None:
     evaluate = groups.eval.add_parser(
         "flow", help="EPE3D / AS / AR / Outliers per estimator, with baselines and the mask ablation",
         description="Every estimator on the same pairs and masks; metrics pooled over points for all, static and "
-        "dynamic points (REFERENCE.md section 3).")
+        "dynamic points (EPE3D, AS, AR and Outliers as defined by FlowNet3D and used by the paper).")
     source = evaluate.add_mutually_exclusive_group(required=True)
     source.add_argument("--scenario", help="simulator scenario to generate pairs from")
     source.add_argument("--data", type=Path, help="directory of exported .npz pairs")

@@ -1,4 +1,4 @@
-"""Scene flow metrics against hand-computed cases (REFERENCE.md section 3)."""
+"""Scene flow metrics against hand-computed cases."""
 
 import math
 

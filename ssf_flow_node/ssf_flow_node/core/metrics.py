@@ -1,4 +1,4 @@
-"""Scene flow metrics as in REFERENCE.md §3: EPE3D, AS, AR, Outliers for all, static and dynamic points."""
+"""Scene flow metrics: EPE3D, AS, AR, Outliers (FlowNet3D definitions, as the paper uses them) for all, static and dynamic points."""
 
 from __future__ import annotations
 
