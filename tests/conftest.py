@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import os
 import random
+import sys
 from pathlib import Path
 
 import pytest
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # shared test helpers: support.py
 SHARED_DATA = (REPO_ROOT / ".." / "shared" / "data").resolve()
 
 if "SSF_TEST_DOMAIN_FIXED" not in os.environ:

@@ -8,16 +8,10 @@ import pytest
 
 from sim_bridge.node import SimBridgeNode
 from ssf_common import messages
+from support import wait_until
 from ssf_common.middleware import QOS_SENSOR_DATA, Node
 
 SMALL = "['route.waypoints=[[0,0],[80,0]]', 'ground.margin=30', 'lidar.columns=128', 'agents.count=0']"
-
-
-def wait_until(predicate, timeout_s: float = 20.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and not predicate():
-        time.sleep(0.01)
-    return predicate()
 
 
 @pytest.fixture

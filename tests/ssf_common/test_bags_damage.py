@@ -7,7 +7,6 @@ import signal
 import subprocess
 import sys
 import textwrap
-from io import BytesIO
 from pathlib import Path
 
 import pytest

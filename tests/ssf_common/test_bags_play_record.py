@@ -4,19 +4,17 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl import types as idl
 from rosbags.rosbag2 import Reader as RosbagsReader
 
 from ssf_common import messages
 from ssf_common.bags.qos import QosReliability, default_profile
 from ssf_common.bags.reader import open_bag
 from ssf_common.bags.writer import BagWriter
+from support import PointCloud2_
 
 T0 = 1_650_000_000_000_000_000
 CHATTER_PERIOD_NS = 50_000_000
@@ -140,39 +138,6 @@ def test_record_closes_a_valid_bag_on_sigterm_while_a_looping_player_runs(source
         texts = [bag.decode(m).data for m in bag.messages()]
     assert len(texts) > 10
     assert all(t.startswith("hello ") for t in texts)
-
-
-@dataclass
-class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: idl.int32
-    nanosec: idl.uint32
-
-
-@dataclass
-class Header_(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time_
-    frame_id: str
-
-
-@dataclass
-class PointField_(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
-    name: str
-    offset: idl.uint32
-    datatype: idl.uint8
-    count: idl.uint32
-
-
-@dataclass
-class PointCloud2_(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
-    header: Header_
-    height: idl.uint32
-    width: idl.uint32
-    fields: idl.sequence[PointField_]
-    is_bigendian: bool
-    point_step: idl.uint32
-    row_step: idl.uint32
-    data: idl.sequence[idl.uint8]
-    is_dense: bool
 
 
 def test_a_plain_ros2_type_subscriber_receives_the_played_clouds(source_bag):

@@ -4,17 +4,20 @@ import hashlib
 import json
 import random
 import types
-from dataclasses import dataclass
 
 import numpy as np
 import pytest
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl.types import float64, int32, sequence, uint8, uint32
 from mcap_ros2._dynamic import generate_dynamic, serialize_dynamic
 from mcap_ros2._vendor.rosidl_adapter.parser import parse_message_string
 from rosbags.interfaces import Nodetype
 
 from ssf_common import messages, pointcloud
+from support import Header_ as Header
+from support import PointCloud2_ as PointCloud2
+from support import PointField_ as PointField
+from support import Time_ as Time
+from support import Twist_ as Twist
+from support import Vector3_ as Vector3
 
 NUMPY_OF = {
     "bool": np.bool_, "byte": np.uint8, "char": np.uint8, "octet": np.uint8,
@@ -142,55 +145,6 @@ def test_pointcloud_from_numpy_is_byte_identical_and_decodes():
     assert [(f.name, f.offset, f.datatype, f.count) for f in decoded.fields] == [
         ("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1), ("intensity", 12, 7, 1), ("ring", 16, 4, 1)
     ]  # fmt: skip
-
-
-# cyclonedds-python IdlStruct types written from the ROS 2 IDL, sharing no code with the project.
-
-
-@dataclass
-class Time(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: int32
-    nanosec: uint32
-
-
-@dataclass
-class Header(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time
-    frame_id: str
-
-
-@dataclass
-class PointField(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
-    name: str
-    offset: uint32
-    datatype: uint8
-    count: uint32
-
-
-@dataclass
-class PointCloud2(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
-    header: Header
-    height: uint32
-    width: uint32
-    fields: sequence[PointField]
-    is_bigendian: bool
-    point_step: uint32
-    row_step: uint32
-    data: sequence[uint8]
-    is_dense: bool
-
-
-@dataclass
-class Vector3(IdlStruct, typename="geometry_msgs::msg::dds_::Vector3_"):
-    x: float64
-    y: float64
-    z: float64
-
-
-@dataclass
-class Twist(IdlStruct, typename="geometry_msgs::msg::dds_::Twist_"):
-    linear: Vector3
-    angular: Vector3
 
 
 def test_pointcloud_cdr_is_byte_identical_to_cyclonedds():

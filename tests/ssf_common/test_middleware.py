@@ -8,8 +8,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pytest
-from cyclonedds.idl import IdlStruct
-from cyclonedds.idl import types as t
 from pydantic import Field
 
 from ssf_common import messages
@@ -18,15 +16,7 @@ from ssf_common.errors import ConfigError, MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA, Node
 from ssf_common.middleware.params import parse_ros_args
 from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
-
-
-def wait_until(predicate, timeout_s: float = 10.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.02)
-    return predicate()
+from support import PointCloud2_, wait_until
 
 
 class Lidar(Section):
@@ -37,37 +27,6 @@ class Lidar(Section):
 class SensorConfig(Section):
     lidar: Lidar = Lidar()
     frame_id: str = "lidar"
-
-
-# The ROS 2 types as anyone would write them from the .msg files: plain Cyclone IDL, no project code.
-@dataclass
-class Time_(IdlStruct, typename="builtin_interfaces::msg::dds_::Time_"):
-    sec: t.int32
-    nanosec: t.uint32
-
-@dataclass
-class Header_(IdlStruct, typename="std_msgs::msg::dds_::Header_"):
-    stamp: Time_
-    frame_id: str
-
-@dataclass
-class PointField_(IdlStruct, typename="sensor_msgs::msg::dds_::PointField_"):
-    name: str
-    offset: t.uint32
-    datatype: t.uint8
-    count: t.uint32
-
-@dataclass
-class PointCloud2_(IdlStruct, typename="sensor_msgs::msg::dds_::PointCloud2_"):
-    header: Header_
-    height: t.uint32
-    width: t.uint32
-    fields: t.sequence[PointField_]
-    is_bigendian: bool
-    point_step: t.uint32
-    row_step: t.uint32
-    data: t.sequence[t.uint8]
-    is_dense: bool
 
 
 @dataclass

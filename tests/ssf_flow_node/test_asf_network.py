@@ -1,6 +1,5 @@
 """The network's building blocks: neighbour search without N x N matrices, FPS, shapes, mask strategies."""
 
-import numpy as np
 import pytest
 import torch
 

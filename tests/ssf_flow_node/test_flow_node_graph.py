@@ -8,18 +8,12 @@ import numpy as np
 import pytest
 
 from ssf_common import messages
+from support import wait_until
 from ssf_common.middleware import QOS_SENSOR_DATA, Node
 from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
 from ssf_flow_node.node import FlowNode
 
 SHIFT = np.array([0.6, -0.2, 0.0], dtype=np.float32)
-
-
-def wait_until(predicate, timeout_s: float = 30.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline and not predicate():
-        time.sleep(0.02)
-    return predicate()
 
 
 def scene(seed: int = 0) -> np.ndarray:

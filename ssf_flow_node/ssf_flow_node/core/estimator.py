@@ -9,7 +9,7 @@ from pydantic import Field
 
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
-from ssf_flow_node.core.base import FlowEstimator, FlowResult, finish, prepare
+from ssf_flow_node.core.base import FlowEstimator, FlowResult, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig
 from ssf_flow_node.core.registration import RegistrationConfig, register, rigid_flow
 from ssf_flow_node.core.rigid import RigidConfig, RigidFlowEstimator
