@@ -58,8 +58,7 @@ def register(groups: CommandGroups) -> None:
     export.add_argument("--seed", type=int, default=None)
     export.add_argument("--frames", type=int, required=True, help="number of consecutive pairs")
     export.add_argument("--out", type=Path, required=True)
-    export.add_argument("--points", type=int, default=8192, help="points per downsampled scan (default 8192)")
-    export.add_argument("--sampling", choices=("random", "fps"), default="random")
+    add_protocol_options(export)
     export.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override")
     export.set_defaults(func=_export)
 
@@ -164,20 +163,35 @@ def _sim_offline(args: argparse.Namespace) -> int:
     return 0
 
 
+def add_protocol_options(parser: argparse.ArgumentParser) -> None:
+    """--protocol and the fields it may override (shared by export, eval and bench)."""
+    parser.add_argument("--protocol", choices=("paper", "raw"), default="paper",
+                        help="paper: ground removed, 35 m range, 8192 points (the scene-flow benchmarks' KITTI "
+                        "protocol); raw: whole scans, ground included (default paper)")
+    parser.add_argument("--points", type=int, help="points per scan (default 8192)")
+    parser.add_argument("--sampling", choices=("random", "fps"), help="how the points are picked (default random)")
+
+
+def protocol_from_args(args: argparse.Namespace):
+    """The pair protocol the flags name."""
+    from sim_bridge.dataset.export import pair_protocol
+
+    return pair_protocol(args.protocol, points=args.points, sampling=args.sampling)
+
+
 def _export(args: argparse.Namespace) -> int:
     from sim_bridge.dataset.export import export
     from sim_bridge.scenario import load_scenario
 
     if args.frames < 1:
         raise ConfigError(f"--frames must be at least 1, got {args.frames}")
-    if args.points < 1:
-        raise ConfigError(f"--points must be at least 1, got {args.points}")
+    protocol = protocol_from_args(args)
     scenario = load_scenario(args.scenario, overrides_from_pairs(args.set))
 
     def progress(done: int, total: int) -> None:
         print(f"pair {done}/{total}", file=sys.stderr)
 
-    out = export(scenario, args.out, args.seed, args.frames, args.points, args.sampling, progress=progress)
+    out = export(scenario, args.out, args.seed, args.frames, protocol, progress=progress)
     print(out)
     return 0
 

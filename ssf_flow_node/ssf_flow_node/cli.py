@@ -14,6 +14,8 @@ ALL_ESTIMATORS = ("zero", "ego", "rigid", "asf-points", "asf-implicit", "asf-exp
 
 
 def register(groups: CommandGroups) -> None:
+    from sim_bridge.cli import add_protocol_options
+
     """Add the scene flow commands."""
     flow = groups.top.add_parser("flow", help="scene flow between two scans")
     flow_commands = flow.add_subparsers(dest="flow_command", metavar="WHAT", required=True)
@@ -54,8 +56,9 @@ def register(groups: CommandGroups) -> None:
     source.add_argument("--data", type=Path, help="directory of exported .npz pairs")
     evaluate.add_argument("--seed", type=int, default=0)
     evaluate.add_argument("--frames", type=int, default=10, help="pairs to generate from the scenario")
-    evaluate.add_argument("--skip", type=int, default=0,
-                          help="simulator pairs to drop first (the ego and the agents start from rest)")
+    evaluate.add_argument("--skip", type=int, default=20,
+                          help="simulator pairs to drop first: the ego and the agents start from rest (default 20)")
+    add_protocol_options(evaluate)
     evaluate.add_argument("--estimators", "--estimator", nargs="+", default=list(ALL_ESTIMATORS), metavar="E",
                           help=f"default: {' '.join(ALL_ESTIMATORS)}")
     evaluate.add_argument("--masks", choices=("none", "noisy", "gt"), default="noisy",
@@ -65,9 +68,12 @@ def register(groups: CommandGroups) -> None:
     add_estimator_options(evaluate, with_name=False)
     evaluate.set_defaults(func=run_eval)
 
-    bench = groups.bench.add_parser("flow", help="ms per frame (median, p95) per estimator at 8192 points, peak RSS")
+    bench = groups.bench.add_parser("flow", help="ms per frame (median, p95) per estimator at 8192 points, peak RSS",
+                                    description="Each estimator on the same few simulator pairs (after the first 20 "
+                                    "frames) with noisy masks, as the fusion loop hands them to the node.")
     bench.add_argument("--frames", type=int, default=20)
-    bench.add_argument("--scenario", default="urban_100", help="simulator scenario the pairs come from ('synthetic': built-in street)")
+    bench.add_argument("--scenario", default="urban_200", help="simulator scenario the pairs come from ('synthetic': built-in street)")
+    add_protocol_options(bench)
     bench.add_argument("--estimators", "--estimator", nargs="+", default=["ego", "rigid", "asf"], metavar="E")
     bench.add_argument("--threads", type=int, default=1, help="torch CPU threads (1 is fastest on a loaded machine)")
     bench.add_argument("--json", type=Path)
@@ -176,17 +182,13 @@ def evaluation_pairs(args: argparse.Namespace):
     """Pairs from an export directory or generated from a simulator scenario."""
     from ssf_flow_node.core.data import as_flow_pair, read_pairs
 
+    from sim_bridge.cli import protocol_from_args
+    from sim_bridge.dataset.export import generate_pairs
+
     if args.data is not None:
         return list(read_pairs(args.data))
-    try:
-        from sim_bridge.dataset.export import generate_pairs
-    except ImportError as err:
-        from ssf_common.errors import DataError
-
-        raise DataError(f"simulator pairs are not available in this install ({err}); use --data DIR") from None
-    skip = getattr(args, "skip", 0)
-    pairs = generate_pairs(args.scenario, args.seed, skip + args.frames, points=8192)
-    return [as_flow_pair(pair) for index, pair in enumerate(pairs) if index >= skip]
+    pairs = generate_pairs(args.scenario, args.seed, args.skip + args.frames, protocol_from_args(args))
+    return [as_flow_pair(pair) for index, pair in enumerate(pairs) if index >= args.skip]
 
 
 def build_estimators(names: list[str], args: argparse.Namespace, skip_missing: bool):
@@ -238,6 +240,7 @@ def run_bench(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
+    from ssf_flow_node.core.data import noisy_mask
     from ssf_flow_node.core.synthetic import synthetic_pair
 
     torch.set_num_threads(args.threads)
@@ -246,18 +249,20 @@ def run_bench(args: argparse.Namespace) -> int:
     if args.scenario == "synthetic":
         pairs = [synthetic_pair(seed, agents=20, ego_step=1.0) for seed in range(count)]
     else:
-        pairs = evaluation_pairs(argparse.Namespace(data=None, scenario=args.scenario, seed=0, frames=count))
+        pairs = evaluation_pairs(argparse.Namespace(**{**vars(args), "data": None, "seed": 0, "skip": 20, "frames": count}))
+    rng = np.random.default_rng(0)
+    masks = [noisy_mask(pair, rng) for pair in pairs]  # what the fusion loop hands the node
     figures = {}
     for estimator in estimators:
         estimator.estimate(pairs[0].pc1, pairs[0].pc2)  # warm-up (imports, allocations)
         spent = []
         for frame in range(args.frames):
-            pair = pairs[frame % len(pairs)]
             started = time.perf_counter()
-            estimator.estimate(pair.pc1, pair.pc2, pair.dynamic1.astype(np.float32))
+            estimator.estimate(pairs[frame % count].pc1, pairs[frame % count].pc2, masks[frame % count])
             spent.append((time.perf_counter() - started) * 1e3)
         figures[estimator.name] = {"ms_median": float(np.median(spent)), "ms_p95": float(np.percentile(spent, 95)),
-                                   "frames": args.frames, "points": int(len(pairs[0].pc1)), "source": args.scenario}
+                                   "frames": args.frames, "points": int(len(pairs[0].pc1)), "source": args.scenario,
+                                   "protocol": args.protocol}
         print(f"{estimator.name:<14} median {figures[estimator.name]['ms_median']:7.1f} ms  "
               f"p95 {figures[estimator.name]['ms_p95']:7.1f} ms", flush=True)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0

@@ -7,7 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from sim_bridge.dataset.export import PAIR_KEYS, export, generate_pairs, load_pairs, sample_indices
+from sim_bridge.dataset.export import PAIR_KEYS, export, generate_pairs, load_pairs, pair_protocol, sample_indices
+from sim_bridge.world import PointClass
+from ssf_common.errors import ConfigError
 from sim_bridge.dataset.kitti import KittiSequence, read_poses
 from ssf_common.errors import DataError
 
@@ -15,15 +17,15 @@ from ssf_common.errors import DataError
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory, small_scenario):
     out = tmp_path_factory.mktemp("export")
-    export(small_scenario(agents=30), out, seed=7, frames=3, points=2048)
+    export(small_scenario(agents=30), out, seed=7, frames=3, protocol=pair_protocol(points=2048))
     return out
 
 
 def test_same_seed_gives_identical_pairs(small_scenario):
     scenario = small_scenario(agents=30)
-    one = list(generate_pairs(scenario, seed=7, frames=2, points=1024))
-    two = list(generate_pairs(scenario, seed=7, frames=2, points=1024))
-    other = list(generate_pairs(scenario, seed=8, frames=2, points=1024))
+    one = list(generate_pairs(scenario, seed=7, frames=2, protocol=pair_protocol(points=1024)))
+    two = list(generate_pairs(scenario, seed=7, frames=2, protocol=pair_protocol(points=1024)))
+    other = list(generate_pairs(scenario, seed=8, frames=2, protocol=pair_protocol(points=1024)))
     for a, b in zip(one, two):
         for key in PAIR_KEYS:
             assert np.array_equal(getattr(a, key), getattr(b, key)), key
@@ -33,7 +35,7 @@ def test_same_seed_gives_identical_pairs(small_scenario):
 def test_export_round_trip(exported, small_scenario):
     pairs = list(load_pairs(exported))
     assert len(pairs) == 3
-    reference = list(generate_pairs(small_scenario(agents=30), seed=7, frames=3, points=2048))
+    reference = list(generate_pairs(small_scenario(agents=30), seed=7, frames=3, protocol=pair_protocol(points=2048)))
     for pair, expected in zip(pairs, reference):
         assert pair.pc1.shape == (2048, 3) and pair.pc1.dtype == np.float32
         for key in PAIR_KEYS:
@@ -48,6 +50,21 @@ def test_export_round_trip(exported, small_scenario):
     assert np.isin(pairs[1].pc1[:5], scan[:, :3]).all()  # downsampled points come from the full scan
     description = json.loads((exported / "dataset.json").read_text())
     assert description["seed"] == 7 and description["sensor"]["beams"] == 64 and description["pairs"] == 3
+    assert description["protocol"] == {"points": 2048, "sampling": "random", "max_range": 35.0, "drop_ground": True}
+
+
+def test_protocols_cut_pairs_as_named(small_scenario):
+    scenario = small_scenario(agents=30)
+    paper = next(generate_pairs(scenario, seed=7, frames=1, protocol=pair_protocol("paper", points=1024)))
+    raw = next(generate_pairs(scenario, seed=7, frames=1, protocol=pair_protocol("raw", points=1024)))
+    assert not (paper.class1 == PointClass.GROUND).any()
+    assert np.linalg.norm(paper.pc1[:, :2], axis=1).max() <= 35.0
+    assert (raw.class1 == PointClass.GROUND).mean() > 0.2
+    assert np.linalg.norm(raw.pc1[:, :2], axis=1).max() > 35.0
+    with pytest.raises(ConfigError, match="unknown pair protocol"):
+        pair_protocol("kitti")
+    with pytest.raises(ConfigError, match="points"):
+        pair_protocol(points=0)
 
 
 def test_readers_reject_bad_files(tmp_path, exported):

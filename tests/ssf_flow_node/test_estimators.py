@@ -57,17 +57,19 @@ def test_rigid_recovers_both_box_motions(pair, results):
         assert np.median(np.linalg.norm(results["rigid"].flow[on] - pair.flow[on], axis=1)) < 0.1
 
 
-def test_rigid_mask_marks_static_objects(pair):
-    """A box the mask calls static moves with the scene; one it calls dynamic keeps its own motion."""
+def test_rigid_mask_settles_what_the_points_leave_open():
+    """Box 1 slides along its own length: the sparse points alone do not prove it moves, the mask does."""
+    pair = synthetic_pair(seed=1, agents=2, ego_step=1.0)
     estimator = make_estimator("rigid")
-    mask = (pair.instance1 == 1).astype(np.float32)
-    with_mask = estimator.estimate(pair.pc1, pair.pc2, mask).flow
-    without = estimator.estimate(pair.pc1, pair.pc2).flow
     box1, box2 = pair.instance1 == 1, pair.instance1 == 2
     static_flow = rigid_flow(pair.ego, pair.pc1)
-    assert np.abs(with_mask[box2] - static_flow[box2]).max() < 0.1
-    assert np.linalg.norm(without[box2] - static_flow[box2], axis=1).mean() > 0.4
-    assert flow_metrics(with_mask[box1], pair.flow[box1]).epe3d < 0.2
+    without = estimator.estimate(pair.pc1, pair.pc2).flow
+    assert np.linalg.norm(without[box1] - static_flow[box1], axis=1).mean() < 0.1  # taken for static structure
+    assert flow_metrics(without[box1], pair.flow[box1]).epe3d > 0.5
+    mask = (pair.instance1 == 1).astype(np.float32)
+    with_mask = estimator.estimate(pair.pc1, pair.pc2, mask).flow
+    assert flow_metrics(with_mask[box1], pair.flow[box1]).epe3d < 0.15
+    assert flow_metrics(with_mask[~box1 & ~box2], pair.flow[~box1 & ~box2]).epe3d < 0.03
 
 
 def test_estimators_accept_more_points_than_they_sample():
@@ -75,7 +77,8 @@ def test_estimators_accept_more_points_than_they_sample():
     config = build(FlowConfig, {"preprocess": {"points": 4096}})
     result = make_estimator("rigid", config).estimate(big.pc1, big.pc2)
     assert result.flow.shape == (20000, 3)
-    assert score_flow(result.flow, big.flow, big.dynamic1).static.epe3d < 0.05
+    scores = score_flow(result.flow, big.flow, big.dynamic1)
+    assert scores.static.epe3d < 0.02
 
 
 def test_unknown_estimator_and_bad_config_are_config_errors():

@@ -50,6 +50,14 @@ def test_propagate_inverse_distance():
     assert out[0, 0] == pytest.approx(0.25)
 
 
+def test_propagate_stops_at_the_radius():
+    source = np.array([[0.0, 0, 0], [1.0, 0, 0]])
+    values = np.array([[2.0, 0, 0], [4.0, 0, 0]])
+    out = propagate(source, values, np.array([[0.1, 0, 0], [5.0, 0, 0]]), k=2, radius=0.5)
+    assert out[0, 0] == pytest.approx(2.0)  # only the near source counts
+    assert not out[1].any()  # nothing within reach
+
+
 def test_ground_mask_separates_ground_and_box():
     rng = np.random.default_rng(0)
     ground = np.column_stack([rng.uniform(-20, 20, (4000, 2)), rng.normal(-1.8, 0.02, 4000)])

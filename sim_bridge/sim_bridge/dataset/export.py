@@ -13,10 +13,40 @@ import numpy as np
 from sim_bridge.dataset.kitti import write_bin, write_poses
 from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Frame, Simulator
-from ssf_common.config import dump
-from ssf_common.errors import DataError
+from sim_bridge.world import PointClass
+from pydantic import Field
+
+from ssf_common.config import Section, build, dump
+from ssf_common.errors import ConfigError, DataError
 
 Sampling = Literal["random", "fps"]
+
+
+class PairProtocol(Section):
+    """How a pair is cut from two full scans: range crop, ground removal, then N points per scan."""
+
+    points: int = Field(8192, ge=1, description="points per scan")
+    sampling: Sampling = "random"
+    max_range: float | None = Field(35.0, gt=0.0, description="points farther from the sensor are dropped (m); null keeps all")
+    drop_ground: bool = Field(True, description="drop points on the ground (ground-truth class) before sampling")
+
+
+PROTOCOLS = {
+    # the scene-flow benchmarks' KITTI protocol (FlowNet3D onwards): ground removed, 35 m, 8192 points
+    "paper": PairProtocol(),
+    # whole scans, ground and all, as the node sees them
+    "raw": PairProtocol(max_range=None, drop_ground=False),
+}
+
+
+def pair_protocol(name: str = "paper", **overrides) -> PairProtocol:
+    """A named protocol with some fields replaced (None values are ignored)."""
+    if name not in PROTOCOLS:
+        raise ConfigError(f"unknown pair protocol '{name}'; choose one of {', '.join(PROTOCOLS)}")
+    changes = {key: value for key, value in overrides.items() if value is not None}
+    return build(PairProtocol, {**PROTOCOLS[name].model_dump(), **changes})
+
+
 PAIR_KEYS = ("pc1", "pc2", "flow", "instance1", "class1", "dynamic1", "pose1", "pose2")
 
 
@@ -71,14 +101,25 @@ def simulate(scenario: Scenario, seed: int | None, frames: int) -> Iterator[Fram
         yield frame
 
 
+def kept_points(frame: Frame, protocol: PairProtocol) -> np.ndarray:
+    """Indices of the scan points the protocol keeps before sampling."""
+    keep = np.ones(len(frame.scan.points), dtype=bool)
+    if protocol.max_range is not None:
+        keep &= np.linalg.norm(frame.scan.points[:, :2], axis=1) <= protocol.max_range
+    if protocol.drop_ground:
+        keep &= frame.scan.label != PointClass.GROUND
+    return np.flatnonzero(keep)
+
+
 def _pairs_of(
-    frames: Iterator[Frame], seed: int, points: int, sampling: Sampling
+    frames: Iterator[Frame], seed: int, protocol: PairProtocol
 ) -> Iterator[tuple[FramePair, Frame, Frame]]:
     previous = next(frames)
     for frame in frames:
         rng = np.random.default_rng([seed, 4, previous.index])
-        first = sample_indices(previous.scan.points, points, rng, sampling)
-        second = sample_indices(frame.scan.points, points, rng, sampling)
+        kept1, kept2 = kept_points(previous, protocol), kept_points(frame, protocol)
+        first = kept1[sample_indices(previous.scan.points[kept1], protocol.points, rng, protocol.sampling)]
+        second = kept2[sample_indices(frame.scan.points[kept2], protocol.points, rng, protocol.sampling)]
         pair = FramePair(
             pc1=previous.scan.points[first],
             pc2=frame.scan.points[second],
@@ -98,16 +139,12 @@ def _scenario(scenario: Scenario | str) -> Scenario:
 
 
 def generate_pairs(
-    scenario: Scenario | str,
-    seed: int | None = None,
-    frames: int = 10,
-    points: int = 8192,
-    sampling: Sampling = "random",
+    scenario: Scenario | str, seed: int | None = None, frames: int = 10, protocol: PairProtocol = PROTOCOLS["paper"]
 ) -> Iterator[FramePair]:
-    """frames consecutive pairs of the scenario (seeded, deterministic), each downsampled to points points."""
+    """frames consecutive pairs of the scenario (seeded, deterministic), cut from the scans by the protocol."""
     scenario = _scenario(scenario)
     seed = scenario.seed if seed is None else seed
-    for pair, _, _ in _pairs_of(simulate(scenario, seed, frames), seed, points, sampling):
+    for pair, _, _ in _pairs_of(simulate(scenario, seed, frames), seed, protocol):
         yield pair
 
 
@@ -116,8 +153,7 @@ def export(
     out: str | Path,
     seed: int | None = None,
     frames: int = 10,
-    points: int = 8192,
-    sampling: Sampling = "random",
+    protocol: PairProtocol = PROTOCOLS["paper"],
     progress=None,
 ) -> Path:
     """Write pairs/NNNNNN.npz, sequence/velodyne/NNNNNN.bin + sequence/poses.txt and dataset.json under out."""
@@ -132,7 +168,7 @@ def export(
         raise DataError(f"{out}: cannot create the output folders ({err.strerror})") from None
     poses = []
     for number, (pair, previous, frame) in enumerate(
-        _pairs_of(simulate(scenario, seed, frames), seed, points, sampling)
+        _pairs_of(simulate(scenario, seed, frames), seed, protocol)
     ):
         np.savez(pair_dir / f"{number:06d}.npz", **{key: getattr(pair, key) for key in PAIR_KEYS})
         if number == 0:
@@ -148,8 +184,7 @@ def export(
         "scenario": scenario.model_dump(mode="json"),
         "seed": seed,
         "pairs": frames,
-        "points": points,
-        "sampling": sampling,
+        "protocol": protocol.model_dump(mode="json"),
         "dt": scenario.episode.dt,
         "sensor": scenario.lidar.model_dump(mode="json"),
         "pair_keys": {

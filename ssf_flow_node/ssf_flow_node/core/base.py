@@ -7,6 +7,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
+from ssf_flow_node.core.registration import rigid_flow
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask, check_scan, downsample, propagate_to_scan
 
 
@@ -47,7 +48,10 @@ def prepare(pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None, config: P
     return PreparedPair(xyz1, xyz2, sample1, sample2, None if mask is None else mask[sample1.indices])
 
 
-def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, k: int) -> FlowResult:
-    """Propagate the flow of the sampled points to every point of scan t."""
-    flow = propagate_to_scan(pair.pc1, pair.sample1, sample_flow.astype(np.float32), k)
+def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, config: PreprocessConfig) -> FlowResult:
+    """Flow for every point of scan t: the ego motion, plus the sampled points' motion relative to it carried to
+    the points near them."""
+    ego_flow = rigid_flow(ego, pair.pc1)
+    relative = sample_flow.astype(np.float32) - ego_flow[pair.sample1.indices]
+    flow = ego_flow + propagate_to_scan(pair.pc1, pair.sample1, relative, config.propagate_k, config.propagate_radius)
     return FlowResult(flow=flow, ego=np.asarray(ego, dtype=np.float64))

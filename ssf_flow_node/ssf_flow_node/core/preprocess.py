@@ -33,6 +33,8 @@ class PreprocessConfig(Section):
     ground_cell: float = Field(2.0, gt=0.0, description="grid cell (m) of the ground height estimate")
     ground_height: float = Field(0.3, gt=0.0, description="points this far above the local ground are not ground (m)")
     propagate_k: int = Field(3, ge=1, le=32, description="neighbours for inverse-distance flow propagation")
+    propagate_radius: float = Field(1.0, gt=0.0, description="object motion reaches points left out of the sample "
+                                    "within this distance (m); farther ones move with the ego motion")
     seed: int = 0
 
 
@@ -141,25 +143,29 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
     return Sample(candidates.astype(np.int64), points[candidates])
 
 
-def propagate(source: np.ndarray, values: np.ndarray, targets: np.ndarray, k: int = 3) -> np.ndarray:
-    """Carry per-point values from source points to target points by inverse-distance kNN (KD-tree)."""
+def propagate(source: np.ndarray, values: np.ndarray, targets: np.ndarray, k: int = 3,
+              radius: float = np.inf) -> np.ndarray:
+    """Carry per-point values from source points to target points by inverse-distance kNN (KD-tree); targets
+    with no source within `radius` get zeros."""
     k = min(k, source.shape[0])
-    distance, index = cKDTree(source).query(targets, k=k)
-    if k == 1:
-        return values[index].astype(np.float32)
-    weight = 1.0 / np.maximum(distance, 1e-6)
-    weight /= weight.sum(axis=1, keepdims=True)
-    return np.einsum("nk,nkc->nc", weight, values[index]).astype(np.float32)
+    distance, index = cKDTree(source).query(targets, k=k, distance_upper_bound=radius)
+    distance, index = distance.reshape(len(targets), k), index.reshape(len(targets), k)
+    found = np.isfinite(distance)
+    weight = np.where(found, 1.0 / np.maximum(distance, 1e-6), 0.0)
+    weight /= np.maximum(weight.sum(axis=1, keepdims=True), 1e-12)
+    padded = np.concatenate([values, np.zeros((1, values.shape[1]), values.dtype)])  # index == len(source): none
+    return np.einsum("nk,nkc->nc", weight, padded[index]).astype(np.float32)
 
 
-def propagate_to_scan(points: np.ndarray, sample: Sample, sample_flow: np.ndarray, k: int = 3) -> np.ndarray:
-    """Flow for every point of a scan: exact on sampled points, interpolated elsewhere."""
+def propagate_to_scan(points: np.ndarray, sample: Sample, sample_flow: np.ndarray, k: int = 3,
+                      radius: float = np.inf) -> np.ndarray:
+    """Flow for every point of a scan: exact on sampled points, interpolated elsewhere (zero beyond `radius`)."""
     flow = np.empty((points.shape[0], 3), dtype=np.float32)
     if sample.indices.size == points.shape[0]:
         flow[sample.indices] = sample_flow
         return flow
     rest = np.ones(points.shape[0], dtype=bool)
     rest[sample.indices] = False
-    flow[rest] = propagate(sample.points, sample_flow, points[rest], k)
+    flow[rest] = propagate(sample.points, sample_flow, points[rest], k, radius)
     flow[sample.indices] = sample_flow
     return flow

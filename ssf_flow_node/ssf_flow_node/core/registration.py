@@ -9,12 +9,18 @@ from ssf_common.config import Section
 
 
 class RegistrationConfig(Section):
-    """Coarse-to-fine ICP schedule: a shrinking correspondence distance, Tukey kernel of half that distance."""
+    """Coarse-to-fine ICP schedule: a shrinking correspondence distance, Tukey kernel of half that distance.
 
-    source_points: int = Field(2048, ge=16, description="random source points used for registration")
-    max_distances: tuple[float, ...] = (2.0, 0.5)
-    iterations: int = Field(10, ge=1, description="ICP iterations per stage")
-    refine_distance: float = Field(0.3, gt=0.0, description="correspondence distance of the refinement on static points")
+    Coarse stages converge on a few random points; the refinement uses many, since with sparse scans the
+    sampling noise, not convergence, limits the accuracy."""
+
+    source_points: int = Field(1024, ge=16, description="random source points of the coarse stages")
+    max_distances: tuple[float, ...] = Field((2.0, 0.5), description="correspondence distance (m) of each coarse stage")
+    iterations: int = Field(20, ge=1, description="most ICP iterations per coarse stage")
+    refine_points: int = Field(8192, ge=16, description="random source points of the refinement")
+    refine_distance: float = Field(0.2, gt=0.0, description="correspondence distance (m) of the refinement")
+    refine_iterations: int = Field(20, ge=1, description="most ICP iterations of the refinement")
+    tolerance: float = Field(1e-4, gt=0.0, description="a stage ends once fitness and RMSE change by less than this (relative)")
     normal_neighbours: int = Field(10, ge=3, description="neighbours for target normals")
     seed: int = 0
 
@@ -53,27 +59,38 @@ class ScanMatcher:
         normals = np.asarray(self.target.normals)
         return normals if len(normals) else np.zeros((len(self.target.points), 3))
 
-    def align(self, source: np.ndarray, initial: np.ndarray | None = None,
-              distances: tuple[float, ...] | None = None) -> np.ndarray:
+    def coarse(self, source: np.ndarray, initial: np.ndarray | None = None) -> np.ndarray:
+        """Transform T (4x4) that roughly maps source points onto the target surfaces, from far away."""
+        transform = np.eye(4) if initial is None else initial
+        for distance in self.config.max_distances:
+            transform = self.icp(source, transform, self.config.source_points, distance, self.config.iterations)
+        return transform
+
+    def refine(self, source: np.ndarray, initial: np.ndarray) -> np.ndarray:
+        """Transform T (4x4) near `initial` that maps source points accurately onto the target surfaces."""
+        return self.icp(source, initial, self.config.refine_points, self.config.refine_distance,
+                        self.config.refine_iterations)
+
+    def align(self, source: np.ndarray, initial: np.ndarray | None = None) -> np.ndarray:
         """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers."""
+        return self.refine(source, self.coarse(source, initial))
+
+    def icp(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int) -> np.ndarray:
+        """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points."""
         import open3d as o3d
 
-        pipelines = o3d.pipelines.registration
-        transform = np.eye(4) if initial is None else np.asarray(initial, dtype=np.float64)
+        transform = np.asarray(initial, dtype=np.float64)
         if source.shape[0] < 10 or not self.usable:
             return transform
-        if source.shape[0] > self.config.source_points:
-            rng = np.random.default_rng(self.config.seed)
-            source = source[rng.choice(source.shape[0], self.config.source_points, replace=False)]
-        moving = to_cloud(source)
-        for distance in distances or self.config.max_distances:
-            result = pipelines.registration_icp(
-                moving, self.target, distance, transform,
-                pipelines.TransformationEstimationPointToPlane(pipelines.TukeyLoss(k=distance / 2.0)),
-                pipelines.ICPConvergenceCriteria(max_iteration=self.config.iterations),
-            )
-            transform = result.transformation
-        return np.asarray(transform)
+        if source.shape[0] > points:
+            source = source[np.random.default_rng(self.config.seed).choice(source.shape[0], points, replace=False)]
+        pipelines = o3d.pipelines.registration
+        result = pipelines.registration_icp(
+            to_cloud(source), self.target, distance, transform,
+            pipelines.TransformationEstimationPointToPlane(pipelines.TukeyLoss(k=distance / 2.0)),
+            pipelines.ICPConvergenceCriteria(self.config.tolerance, self.config.tolerance, iterations),
+        )
+        return np.asarray(result.transformation)
 
 
 def register(source: np.ndarray, target: np.ndarray, config: RegistrationConfig,

@@ -24,19 +24,24 @@ class RigidConfig(Section):
 
     cluster_voxel: float = Field(0.5, gt=0.0, description="voxel edge (m) of the connected-component clustering")
     min_cluster_points: int = Field(10, ge=3, description="points needed in each scan to register a cluster")
+    min_masked_points: int = Field(3, ge=2, description="points needed in each scan for a cluster the mask calls dynamic")
     max_step: float = Field(3.0, gt=0.0, description="largest object displacement per frame (m)")
     histogram_bin: float = Field(0.3, gt=0.0, description="bin (m) of the translation histogram")
     histogram_points: int = Field(32, ge=4, description="points per scan and cluster in the translation histogram")
     histogram_peaks: int = Field(4, ge=1, description="histogram peaks tried as initial translations")
     point_weight: float = Field(0.3, ge=0.0, description="weight of point-to-point next to point-to-plane residuals")
     plane: bool = Field(True, description="register objects point-to-plane (normals of scan t+1) instead of point-to-point")
-    point_weight: float = Field(0.3, ge=0.0, description="weight of point-to-point next to point-to-plane residuals")
-    plane: bool = Field(True, description="register objects point-to-plane (normals of scan t+1) instead of point-to-point")
     max_yaw: float = Field(0.1, ge=0.0, description="largest object rotation per frame (rad)")
+    max_extent: float = Field(12.0, gt=0.0, description="larger clusters (xy extent, m) are static structure unless the mask says otherwise")
+    icp_points: int = Field(128, ge=3, description="points per cluster in its ICP (random, for speed on big clusters)")
     icp_iterations: int = Field(5, ge=1, description="iterations of the batched per-cluster ICP")
     icp_gates: tuple[float, float] = Field((1.0, 0.3), description="correspondence gate (m), first and last iteration")
     residual_cap: float = Field(1.0, gt=0.0, description="nearest-neighbour residuals are truncated here (m)")
-    min_gain: float = Field(0.2, ge=0.0, le=1.0, description="share of the static hypothesis' residual a motion must remove")
+    min_gain: float = Field(0.5, ge=0.0, le=1.0, description="share of the static hypothesis' residual a motion must "
+                            "remove (where the mask does not call the cluster dynamic)")
+    inlier_gate: float = Field(0.3, gt=0.0, description="a point is explained by scan t+1 within this distance (m)")
+    min_explained_gain: float = Field(0.25, ge=0.0, le=1.0, description="or: share of a cluster's points a motion must "
+                                      "newly explain")
     min_motion: float = Field(0.05, ge=0.0, description="cluster motions below this (m) are static")
     attach_height: float = Field(0.08, ge=0.0, description="points below ground_height but above this may belong to objects (m)")
     attach_distance: float = Field(0.6, ge=0.0, description="such low points this close to a moving cluster move with it (m)")
@@ -74,9 +79,9 @@ class RigidFlowEstimator:
         pair = prepare(pc1, pc2, mask, self.preprocess)
         points1, points2 = pair.sample1.points, pair.sample2.points
         dynamic = None if pair.mask is None else pair.mask > self.config.mask_threshold
-        # 1. ego motion from the (presumably) static points
+        # 1. rough ego motion from the (presumably) static points
         matcher = ScanMatcher(points2, self.registration)
-        ego = matcher.align(points1 if dynamic is None else points1[~dynamic])
+        ego = matcher.coarse(points1 if dynamic is None else points1[~dynamic])
         compensated = transform_points(ego, points1)
         # 2. drop the ground, cluster the rest of both scans together
         height1 = height_above_ground(points1, self.preprocess.ground_cell)
@@ -87,20 +92,19 @@ class RigidFlowEstimator:
         normals2 = matcher.normals()[above2] if self.config.plane else None
         motions = cluster_motions(compensated[above1], points2[above2], clusters, self.config,
                                   None if dynamic is None else pair.mask[above1], normals2)
-        # 4. refine the ego motion on the points that turned out static
+        # 4. accurate ego motion from the points that turned out static
         static = ~on_moving_clusters(above1, clusters.labels1, motions.moving)
         if dynamic is not None:
             static &= ~dynamic
-        ego = matcher.align(points1[static], ego, (self.registration.refine_distance,))
-        compensated = transform_points(ego, points1)
+        ego = matcher.refine(points1[static], ego)
         # 5. every point moves with its cluster (ground-flagged points touching a moving cluster too), or with the scene
         labels = np.full(points1.shape[0], -1)
         labels[above1] = clusters.labels1
         low = ~above1 & (height1 > self.config.attach_height)
         labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions.moving,
                                        self.config.attach_distance)
-        moved = apply_motions(compensated, labels, motions)
-        return finish(pair, moved - points1, ego, self.preprocess.propagate_k)
+        moved = apply_motions(transform_points(ego, points1), labels, motions)
+        return finish(pair, moved - points1, ego, self.preprocess)
 
 
 def on_moving_clusters(clustered: np.ndarray, labels: np.ndarray, moving: np.ndarray) -> np.ndarray:
@@ -144,10 +148,13 @@ def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clu
     if picks1.size and picks2.size:
         candidates += histogram_peaks(points1, points2, clusters, picks1, picks2, config)
     labels = clusters.labels1[picks1]
-    scores = np.stack([truncated_residual(points1[picks1] + shift[labels], labels, tree, clusters.labels2,
-                                          config.residual_cap, count) for shift in candidates])
-    best = scores.argmin(axis=0)
-    return np.stack(candidates)[best, np.arange(count)]
+    shifts = np.stack(candidates)  # (candidates, clusters, 3)
+    moved = (points1[picks1][None] + shifts[:, labels]).reshape(-1, 3)
+    tries = np.repeat(np.arange(len(candidates)), labels.size) * count + np.tile(labels, len(candidates))
+    scores = fit_quality(moved, tries, tree, clusters.labels2, config, len(candidates) * count,
+                         np.tile(labels, len(candidates))).residual
+    best = scores.reshape(len(candidates), count).argmin(axis=0)
+    return shifts[best, np.arange(count)]
 
 
 def centroid_shift(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, count: int) -> np.ndarray:
@@ -237,14 +244,25 @@ def rotate_translate(points: np.ndarray, yaw: np.ndarray, translation: np.ndarra
                      points[:, 2] + translation[:, 2]], axis=1)
 
 
-def truncated_residual(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray, cap: float,
-                       count: int) -> np.ndarray:
-    """Per cluster, the mean distance of its points to the same cluster in scan t+1, each capped at `cap`."""
-    gap, index = tree.query(moved, distance_upper_bound=cap)
+class Fit(NamedTuple):
+    """How well scan t+1 explains each cluster under one motion hypothesis."""
+
+    residual: np.ndarray  # mean distance to the same cluster in scan t+1, each capped at residual_cap (m)
+    unexplained: np.ndarray  # share of points farther than inlier_gate from it
+
+
+def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray, config: RigidConfig,
+                count: int, clusters: np.ndarray | None = None) -> Fit:
+    """Per label, residual and unexplained share of its moved points against the same cluster in scan t+1
+    (`clusters`: each point's cluster, where the labels are not clusters)."""
+    clusters = labels if clusters is None else clusters
+    gap, index = tree.query(moved, distance_upper_bound=config.residual_cap)
     hit = np.isfinite(gap)
-    hit[hit] = labels2[index[hit]] == labels[hit]
-    residual = np.where(hit, gap, cap)
-    return np.bincount(labels, residual, count) / np.maximum(np.bincount(labels, minlength=count), 1)
+    hit[hit] = labels2[index[hit]] == clusters[hit]
+    residual = np.where(hit, gap, config.residual_cap)
+    sizes = np.maximum(np.bincount(labels, minlength=count), 1)
+    return Fit(np.bincount(labels, residual, count) / sizes,
+               np.bincount(labels, residual > config.inlier_gate, count) / sizes)
 
 
 def plane_step(moved: np.ndarray, target: np.ndarray, normals: np.ndarray, labels: np.ndarray, yaw: np.ndarray,
@@ -287,14 +305,17 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         return ClusterMotions(yaw, translation, np.zeros(count, dtype=bool))
     sizes1 = np.bincount(clusters.labels1, minlength=count)
     sizes2 = np.bincount(clusters.labels2, minlength=count)
-    active = (sizes1 >= config.min_cluster_points) & (sizes2 >= config.min_cluster_points)
+    active = (np.minimum(sizes1, sizes2) >= config.min_cluster_points) & (extents(points1, clusters.labels1, count) <= config.max_extent)
     belief = None
     if mask is not None:
         belief = np.bincount(clusters.labels1, mask, count) / np.maximum(sizes1, 1)
-        active &= belief > 1.0 - config.mask_threshold  # clusters the mask calls static move with the scene
+        active |= (belief > config.mask_threshold) & (np.minimum(sizes1, sizes2) >= config.min_masked_points)
     tree = cKDTree(points2)
-    translation = initial_translations(points1, points2, clusters, active, config, tree, np.random.default_rng(0))
-    members = np.flatnonzero(active[clusters.labels1])
+    rng = np.random.default_rng(0)
+    translation = initial_translations(points1, points2, clusters, active, config, tree, rng)
+    believed = np.zeros(count, dtype=bool) if belief is None else belief > config.mask_threshold
+    active &= believed | (translation != 0.0).any(axis=1)  # where standing still explains a cluster best, it does
+    members = pick_per_cluster(clusters.labels1, active, config.icp_points, rng)
     source, labels = points1[members], clusters.labels1[members]
     gates = np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations)
     for gate in gates:
@@ -310,15 +331,25 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                                   yaw, translation, count, config)
         yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
     moved = rotate_translate(source, yaw[labels], translation[labels])
-    residual_moving = truncated_residual(moved, labels, tree, clusters.labels2, config.residual_cap, count)
-    residual_static = truncated_residual(source, labels, tree, clusters.labels2, config.residual_cap, count)
+    fit_moving = fit_quality(moved, labels, tree, clusters.labels2, config, count)
+    fit_static = fit_quality(source, labels, tree, clusters.labels2, config, count)
     shift = np.stack([np.bincount(labels, (moved - source)[:, i], count) for i in range(3)], axis=1)
     displacement = np.linalg.norm(shift, axis=1) / np.maximum(np.bincount(labels, minlength=count), 1)
-    moving = active & (displacement > config.min_motion) & (residual_moving < (1.0 - config.min_gain) * residual_static)
-    if belief is not None:
-        moving |= active & (displacement > config.min_motion) & (belief > config.mask_threshold)
+    explains = (fit_moving.residual < (1.0 - config.min_gain) * fit_static.residual) | (
+        fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain)
+    moving = active & (displacement > config.min_motion) & explains
+    moving |= active & (displacement > config.min_motion) & believed
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving)
+
+
+def extents(points: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Per cluster, the larger side (m) of its horizontal bounding box."""
+    low = np.full((count, 2), np.inf)
+    high = np.full((count, 2), -np.inf)
+    np.minimum.at(low, labels, points[:, :2])
+    np.maximum.at(high, labels, points[:, :2])
+    return np.where(np.isfinite(low[:, 0]), (high - low).max(axis=1), 0.0)
 
 
 def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, moving: np.ndarray,

@@ -40,10 +40,16 @@ def sample_ground(rng: np.random.Generator, count: int, centre: np.ndarray) -> n
     return np.column_stack([xy, z])
 
 
-def sample_box(rng: np.random.Generator, box: Box, count: int) -> np.ndarray:
-    """Points on the four sides and the top of a box, in world coordinates."""
+def sample_box(rng: np.random.Generator, box: Box, count: int, viewpoint: np.ndarray | None = None) -> np.ndarray:
+    """Points on the sides and the top of a box, in world coordinates (only the sides facing `viewpoint`, as a
+    LiDAR there would see them)."""
     length, width, height = box.size
     areas = np.array([length * height, length * height, width * height, width * height, length * width])
+    if viewpoint is not None:
+        c, s = np.cos(box.yaw), np.sin(box.yaw)
+        local_view = np.array([[c, s], [-s, c]]) @ (viewpoint[:2] - box.centre[:2])
+        outward = np.array([local_view[1] > 0, local_view[1] < 0, local_view[0] > 0, local_view[0] < 0, True])
+        areas = areas * outward
     face = rng.choice(5, count, p=areas / areas.sum())
     u, v = rng.uniform(-0.5, 0.5, count), rng.uniform(0.0, 1.0, count)
     local = np.zeros((count, 3))
@@ -95,10 +101,11 @@ def synthetic_pair(seed: int = 0, agents: int = 2, ego_step: float = 1.0, points
         parts = [sample_ground(generator, points - count_box * (len(static) + len(moving)), sensor[:3, 3])]
         labels = [np.zeros(parts[0].shape[0], dtype=np.int32)]
         for box in static:
-            parts.append(sample_box(generator, box, count_box))
+            parts.append(sample_box(generator, box, count_box, sensor[:3, 3]))
             labels.append(np.zeros(count_box, dtype=np.int32))
         for index, (box, motion) in enumerate(zip(moving, motions), start=1):
-            world = sample_box(generator, box, count_box)
+            viewpoint = (np.linalg.inv(motion) @ sensor[:, 3])[:3] if moved else sensor[:3, 3]
+            world = sample_box(generator, box, count_box, viewpoint)
             if moved:
                 world = (motion @ np.column_stack([world, np.ones(len(world))]).T).T[:, :3]
             parts.append(world)

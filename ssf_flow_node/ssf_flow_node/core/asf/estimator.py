@@ -63,4 +63,4 @@ class AsfFlowEstimator:
         warped = transform_points(ego, points1)
         channels = mask_channels(pair.mask, points1.shape[0])
         residual = self.network(self.batch(warped), self.batch(points2), self.batch(channels)).full[0].cpu().numpy()
-        return finish(pair, warped + residual - points1, ego, self.preprocess.propagate_k)
+        return finish(pair, warped + residual - points1, ego, self.preprocess)
