@@ -107,12 +107,14 @@ def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:
     return values
 
 
-def flow_config(args: argparse.Namespace):
-    """The estimator config from --flow-config and -p overrides."""
-    from ssf_common.config import load
-    from ssf_flow_node.core.estimator import FlowConfig
+def flow_config(args: argparse.Namespace, whole_scans: bool = False):
+    """The estimator config from --flow-config and -p overrides (over the whole-scan defaults if asked)."""
+    from ssf_common.config import build, read_yaml
+    from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig
 
-    return load(FlowConfig, args.flow_config, parse_overrides(args.param, "-p"))
+    file = read_yaml(args.flow_config) if args.flow_config else {}
+    return build(FlowConfig, WHOLE_SCAN if whole_scans else {}, file, parse_overrides(args.param, "-p"),
+                 source=str(args.flow_config or "-p"))
 
 
 def read_mask(path: Path, count: int):
@@ -139,7 +141,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     from ssf_common.scan_io import read_scan
     from ssf_flow_node.core.estimator import make_estimator
 
-    estimator = make_estimator(args.estimator, flow_config(args), device=args.device)
+    estimator = make_estimator(args.estimator, flow_config(args, whole_scans=True), device=args.device)
     pc1, pc2 = read_scan(args.pc1), read_scan(args.pc2)
     mask = read_mask(args.mask, pc1.shape[0]) if args.mask else None
     result = estimator.estimate(pc1, pc2, mask)

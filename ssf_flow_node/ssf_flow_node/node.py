@@ -14,7 +14,7 @@ from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
 from ssf_common.pointcloud import cloud_to_array, decode_cloud_or_none, xyz_to_cloud
 from ssf_common.worker import LatestWorker
-from ssf_flow_node.core.estimator import FlowConfig, make_estimator
+from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 
 SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
 MASK_FIELD = "mask"  # probability that a point moves, in [0, 1]
@@ -72,7 +72,7 @@ class FlowNode(Node):
 
     def __init__(self, argv: list[str] | None = None) -> None:
         super().__init__("ssf_flow_node", argv=argv)
-        self.config = self.declare_config(FlowConfig)
+        self.config = self.declare_config(FlowConfig, defaults=WHOLE_SCAN)
         device = self.declare_parameter("device", "cpu").value
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.estimator = make_estimator(config=self.config, device=device)

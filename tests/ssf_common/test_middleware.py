@@ -88,6 +88,12 @@ def test_declare_config_uses_dotted_parameter_names(nodes):
     assert node.get_parameter("lidar.rows").value == 32
 
 
+def test_declare_config_layers_node_defaults_under_overrides(nodes):
+    node = nodes("configured", ["--ros-args", "-p", "lidar.rows:=32"])
+    config = node.declare_config(SensorConfig, defaults={"lidar": {"rows": 16, "range_m": 50.0}})
+    assert config.lidar.rows == 32 and config.lidar.range_m == 50.0  # the override wins over the node default
+
+
 @pytest.mark.parametrize(
     "override, message",
     [("lidar.rows:=-1", "lidar.rows"), ("lidar.rows:=abc", "lidar.rows"), ("lidar.colour:=1", "unknown parameter")],

@@ -5,7 +5,7 @@ import pytest
 
 from ssf_common.errors import DataError
 from ssf_flow_node.core.preprocess import (PreprocessConfig, Sampling, check_mask, check_scan, downsample,
-                                           ground_mask, propagate, propagate_to_scan)
+                                           ground_mask, propagate, propagate_motion)
 
 
 def scan(count=20000, seed=0):
@@ -31,15 +31,20 @@ def test_small_scans_are_kept_whole():
     assert len(sample.indices) == 500
 
 
-def test_propagation_is_exact_on_sampled_points_and_smooth_elsewhere():
+def test_motion_propagation_is_exact_on_sampled_points_and_reaches_only_their_surroundings():
     points = scan(5000)
     sample = downsample(points, PreprocessConfig(points=1000, max_range=100.0), np.random.default_rng(1))
-    flow = propagate_to_scan(points, sample, np.tile([1.0, 2.0, 3.0], (1000, 1)).astype(np.float32))
-    assert flow.shape == (5000, 3)
-    assert np.allclose(flow, [1.0, 2.0, 3.0], atol=1e-5)
-    linear = sample.points[:, :1] * np.ones((1, 3), np.float32)
-    flow = propagate_to_scan(points, sample, linear, k=1)
-    assert np.allclose(flow[sample.indices], linear)
+    motion = propagate_motion(points, sample, np.tile([1.0, 2.0, 3.0], (1000, 1)).astype(np.float32))
+    assert motion.shape == (5000, 3)
+    assert np.allclose(motion, [1.0, 2.0, 3.0], atol=1e-5)
+    relative = np.zeros((1000, 3), np.float32)
+    mover = sample.points[:, 0] > 0  # half of the scene moves by 1 m along x
+    relative[mover, 0] = 1.0
+    motion = propagate_motion(points, sample, relative, k=1, radius=0.5)
+    assert np.array_equal(motion[sample.indices], relative)
+    gap_to_mover = np.linalg.norm(points[:, None, :] - sample.points[mover][None], axis=2).min(axis=1)
+    assert not motion[gap_to_mover > 0.5].any()
+    assert set(np.unique(motion[:, 0])) <= {0.0, 1.0}
 
 
 def test_propagate_inverse_distance():

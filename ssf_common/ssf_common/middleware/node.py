@@ -250,9 +250,10 @@ class Node:
         """Overrides given on the command line or in a params file that no declaration used."""
         return sorted(name for name in self._overrides if name not in self._parameters)
 
-    def declare_config(self, model: type[ModelT], prefix: str = "") -> ModelT:
-        """Declare every field of a config model as a dotted parameter and return the validated model."""
-        defaults = config_lib.flatten(model().model_dump(mode="json"))
+    def declare_config(self, model: type[ModelT], prefix: str = "", defaults: dict[str, Any] | None = None) -> ModelT:
+        """Declare every field of a config model as a dotted parameter (defaults: the model's, with `defaults`
+        laid over them) and return the validated model."""
+        defaults = config_lib.flatten(config_lib.build(model, defaults or {}).model_dump(mode="json"))
         values = {}
         for name, default in defaults.items():
             values[name] = self.declare_parameter(f"{prefix}{name}", default).value

@@ -8,7 +8,7 @@ from typing import NamedTuple, Protocol
 import numpy as np
 
 from ssf_flow_node.core.registration import rigid_flow
-from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask, check_scan, downsample, propagate_to_scan
+from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask, check_scan, downsample, propagate_motion
 
 
 @dataclass(frozen=True)
@@ -53,5 +53,5 @@ def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, config:
     the points near them."""
     ego_flow = rigid_flow(ego, pair.pc1)
     relative = sample_flow.astype(np.float32) - ego_flow[pair.sample1.indices]
-    flow = ego_flow + propagate_to_scan(pair.pc1, pair.sample1, relative, config.propagate_k, config.propagate_radius)
+    flow = ego_flow + propagate_motion(pair.pc1, pair.sample1, relative, config.propagate_k, config.propagate_radius)
     return FlowResult(flow=flow, ego=np.asarray(ego, dtype=np.float64))

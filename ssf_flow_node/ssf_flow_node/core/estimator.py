@@ -16,6 +16,11 @@ from ssf_flow_node.core.rigid import RigidConfig, RigidFlowEstimator
 
 ESTIMATORS = ("zero", "ego", "rigid", "asf")
 
+# Defaults for whole LiDAR scans (the node, `ssf flow estimate`): the N points go to non-ground structure within
+# 35 m, the paper's protocol, and every other point gets its flow from them. Pairs already cut that way (`ssf eval
+# flow`) use the plain defaults.
+WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 35.0}}
+
 
 class AsfRunConfig(Section):
     """How the network is run: weights file (empty: the shipped weights) and how the mask is fed."""

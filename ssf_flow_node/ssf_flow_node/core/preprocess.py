@@ -78,25 +78,44 @@ def ground_mask(points: np.ndarray, cell: float = 2.0, height: float = 0.3) -> n
     return height_above_ground(points, cell) < height
 
 
+DENSE_GRID_CELLS = 1 << 22  # beyond this many grid cells (scattered outliers) the sparse path is used
+
+
 def height_above_ground(points: np.ndarray, cell: float = 2.0) -> np.ndarray:
     """Height of each point above the lowest point of its grid cell (or its 8 neighbours, slope-tolerant)."""
     keys = np.floor(points[:, :2] / cell).astype(np.int64)
-    keys -= keys.min(axis=0)
-    width = int(keys[:, 1].max()) + 3
-    cells = (keys[:, 0] + 1) * width + keys[:, 1] + 1
+    keys -= keys.min(axis=0) - 1  # a border of empty cells around the scan
+    rows, cols = (int(n) + 2 for n in keys.max(axis=0))
+    if rows * cols > DENSE_GRID_CELLS:
+        return sparse_height_above_ground(points, keys, cols, cell)
+    cells = keys[:, 0] * cols + keys[:, 1]
+    lowest = np.full(rows * cols, np.inf)
+    np.minimum.at(lowest, cells, points[:, 2])
+    grid = lowest.reshape(rows, cols)
+    neighbour_lowest = np.full_like(grid, np.inf)
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            if dx or dy:
+                np.minimum(neighbour_lowest[1:-1, 1:-1], grid[1 + dx:rows - 1 + dx, 1 + dy:cols - 1 + dy],
+                           out=neighbour_lowest[1:-1, 1:-1])
+    floor = np.minimum(grid, neighbour_lowest + 0.15 * cell).ravel()  # a cell without visible ground borrows its neighbours'
+    return points[:, 2] - floor[cells]
+
+
+def sparse_height_above_ground(points: np.ndarray, keys: np.ndarray, cols: int, cell: float) -> np.ndarray:
+    """height_above_ground over the occupied cells only, for scans spread over a huge area."""
+    cells = keys[:, 0] * cols + keys[:, 1]
     unique, inverse = np.unique(cells, return_inverse=True)
     lowest = np.full(unique.shape[0], np.inf, dtype=np.float64)
     np.minimum.at(lowest, inverse, points[:, 2])
-    neighbour_lowest = lowest.copy()
+    neighbour_lowest = np.full_like(lowest, np.inf)
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
-            if dx == 0 and dy == 0:
-                continue
-            shifted = np.searchsorted(unique, unique + dx * width + dy)
-            shifted = np.minimum(shifted, unique.shape[0] - 1)
-            found = unique[shifted] == unique + dx * width + dy
-            neighbour_lowest[found] = np.minimum(neighbour_lowest[found], lowest[shifted[found]])
-    floor = np.minimum(lowest, neighbour_lowest + 0.15 * cell)  # a cell without visible ground borrows its neighbours'
+            if dx or dy:
+                shifted = np.minimum(np.searchsorted(unique, unique + dx * cols + dy), unique.shape[0] - 1)
+                found = unique[shifted] == unique + dx * cols + dy
+                neighbour_lowest[found] = np.minimum(neighbour_lowest[found], lowest[shifted[found]])
+    floor = np.minimum(lowest, neighbour_lowest + 0.15 * cell)
     return points[:, 2] - floor[inverse]
 
 
@@ -157,15 +176,20 @@ def propagate(source: np.ndarray, values: np.ndarray, targets: np.ndarray, k: in
     return np.einsum("nk,nkc->nc", weight, padded[index]).astype(np.float32)
 
 
-def propagate_to_scan(points: np.ndarray, sample: Sample, sample_flow: np.ndarray, k: int = 3,
-                      radius: float = np.inf) -> np.ndarray:
-    """Flow for every point of a scan: exact on sampled points, interpolated elsewhere (zero beyond `radius`)."""
-    flow = np.empty((points.shape[0], 3), dtype=np.float32)
-    if sample.indices.size == points.shape[0]:
-        flow[sample.indices] = sample_flow
-        return flow
+def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k: int = 3,
+                     radius: float = np.inf) -> np.ndarray:
+    """Motion relative to the scene for every point of a scan: exact on sampled points, interpolated on the
+    others near sampled points that move, zero elsewhere."""
+    motion = np.zeros((points.shape[0], 3), dtype=np.float32)
+    motion[sample.indices] = relative
+    moving = np.abs(relative).max(axis=1) > 0.0
+    if not moving.any() or sample.indices.size == points.shape[0]:
+        return motion
     rest = np.ones(points.shape[0], dtype=bool)
     rest[sample.indices] = False
-    flow[rest] = propagate(sample.points, sample_flow, points[rest], k, radius)
-    flow[sample.indices] = sample_flow
-    return flow
+    rest = np.flatnonzero(rest)
+    gap, _ = cKDTree(sample.points[moving]).query(points[rest], distance_upper_bound=radius)
+    near = rest[np.isfinite(gap)]  # only these can pick up any motion
+    if near.size:
+        motion[near] = propagate(sample.points, relative, points[near], k, radius)
+    return motion
