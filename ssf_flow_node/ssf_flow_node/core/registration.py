@@ -21,7 +21,7 @@ class RegistrationConfig(Section):
     refine_distance: float = Field(0.2, gt=0.0, description="correspondence distance (m) of the refinement")
     refine_iterations: int = Field(20, ge=1, description="most ICP iterations of the refinement")
     tolerance: float = Field(1e-4, gt=0.0, description="a stage ends once fitness and RMSE change by less than this (relative)")
-    normal_neighbours: int = Field(10, ge=3, description="neighbours for target normals")
+    normal_neighbours: int = Field(8, ge=3, description="neighbours for target normals (few: sharp planes on sparse scans)")
     seed: int = 0
 
 
