@@ -64,6 +64,7 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--masks", choices=("none", "noisy", "gt"), default="noisy",
                           help="mask given to every estimator (noisy: ground truth with 10%% objects dropped, 3%% points flipped)")
     evaluate.add_argument("--json", type=Path, help="write the results here")
+    evaluate.add_argument("--plot", type=Path, help="PNG: bird's-eye view of the last pair, each estimator's error per point")
     evaluate.add_argument("--threads", type=int, default=1, help="torch CPU threads (1 is fastest on a loaded machine)")
     add_estimator_options(evaluate, with_name=False)
     evaluate.set_defaults(func=run_eval)
@@ -231,6 +232,17 @@ def run_eval(args: argparse.Namespace) -> int:
                                 **{split: getattr(r.scores, split)._asdict() for split in ("all", "static", "dynamic")}}
                                for r in results]}
         args.json.write_text(json.dumps(payload, indent=2))
+    if args.plot:
+        from ssf_flow_node.core.evaluation import mask_for
+        from ssf_flow_node.core.plot import plot_pair
+
+        import numpy as np
+
+        pair = pairs[-1]
+        mask = mask_for(pair, MaskSource(args.masks), np.random.default_rng(args.seed))
+        shown = {estimator.name: estimator.estimate(pair.pc1, pair.pc2, mask) for estimator in estimators
+                 if estimator.name != "zero"}
+        print(plot_pair(pair, shown, args.plot, f"{where}: last pair, masks {args.masks}"), file=sys.stderr)
     return 0
 
 
