@@ -5,10 +5,11 @@ import pytest
 
 from ssf_common.config import build
 from ssf_common.errors import ConfigError
-from ssf_flow_node.core.estimator import FlowConfig, make_estimator
+from ssf_common.scan_io import read_scan
+from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 from ssf_flow_node.core.metrics import flow_metrics, score_flow
 from ssf_flow_node.core.registration import rigid_flow
-from ssf_flow_node.core.synthetic import synthetic_pair
+from ssf_flow_node.core.synthetic import pose, synthetic_pair
 
 
 @pytest.fixture(scope="module")
@@ -86,3 +87,18 @@ def test_unknown_estimator_and_bad_config_are_config_errors():
         make_estimator("magic")
     with pytest.raises(ConfigError, match="preprocess.points"):
         build(FlowConfig, {"preprocess.points": -3})
+
+
+@pytest.mark.parametrize("name", ["vlp16_1673400472138016708.pcd", "vlp32_1713492677464078412.pcd"])
+def test_rigid_on_real_scan_geometry_sees_only_the_ego_motion(shared_data, name):
+    """A real scan and a re-sampled, noisy copy seen from 0.3 m further on: nothing may look like it moves."""
+    scan = read_scan(shared_data / "lidar_scans" / name)[:, :3]
+    rng = np.random.default_rng(0)
+    ego = np.linalg.inv(pose(0.3, 0.05, 0.01, 0.03))
+    pc1 = scan[rng.random(len(scan)) < 0.7]
+    second = scan[rng.random(len(scan)) < 0.7]
+    pc2 = (second @ ego[:3, :3].T + ego[:3, 3] + rng.normal(0.0, 0.01, second.shape)).astype(np.float32)
+    result = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN)).estimate(pc1, pc2)
+    error = np.linalg.norm(result.flow - rigid_flow(ego, pc1), axis=1)
+    assert error.mean() < 0.02 and np.percentile(error, 99) < 0.05
+    assert np.abs(result.ego - ego).max() < 0.02
