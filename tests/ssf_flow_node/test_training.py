@@ -47,6 +47,16 @@ def test_tiny_training_run_decreases_the_loss(data, tmp_path, mode, factor):
     assert np.mean(result.losses[-5:]) < factor * np.mean(result.losses[:5])
 
 
+def test_weight_decay_does_not_erase_the_input_layer(data, tmp_path):
+    """Weights that get little gradient must keep their size (Adam with an L2 term drove them to zero)."""
+    torch.manual_seed(0)
+    trainer = Trainer(tiny_config(steps=60, weight_decay=1e-2), pair_files(data), tmp_path / "tiny.pt", log=lambda line: None)
+    first_layer = trainer.network.encoder[0].weight
+    before = first_layer.detach().abs().mean().item()
+    trainer.run()
+    assert first_layer.detach().abs().mean().item() > 0.5 * before
+
+
 def test_checkpoint_carries_config_and_resumes(data, tmp_path):
     out = tmp_path / "run.pt"
     Trainer(tiny_config(steps=3, network=TINY.model_copy(update={"strategy": MaskStrategy.IMPLICIT})),

@@ -11,11 +11,11 @@ from ssf_common.config import Section
 class RegistrationConfig(Section):
     """Coarse-to-fine ICP schedule: a shrinking correspondence distance, Tukey kernel of half that distance.
 
-    Coarse stages converge on a few random points; the refinement uses many, since with sparse scans the
+    A coarse stage converges on a few random points; the refinement uses many, since with sparse scans the
     sampling noise, not convergence, limits the accuracy."""
 
     source_points: int = Field(1024, ge=16, description="random source points of the coarse stages")
-    max_distances: tuple[float, ...] = Field((2.0, 0.5), description="correspondence distance (m) of each coarse stage")
+    max_distances: tuple[float, ...] = Field((2.0,), description="correspondence distance (m) of each coarse stage")
     iterations: int = Field(20, ge=1, description="most ICP iterations per coarse stage")
     refine_points: int = Field(8192, ge=16, description="random source points of the refinement")
     refine_distance: float = Field(0.2, gt=0.0, description="correspondence distance (m) of the refinement")

@@ -37,7 +37,7 @@ class TrainConfig(Section):
     batch_size: int = Field(2, ge=1)
     points: int = Field(8192, ge=256, description="points per scan and sample")
     learning_rate: float = Field(1e-3, gt=0.0)
-    weight_decay: float = Field(1e-4, ge=0.0)
+    weight_decay: float = Field(1e-4, ge=0.0, description="decoupled (AdamW): with Adam's L2 term, weights that get little gradient decay to zero")
     decay: float = Field(0.7, gt=0.0, le=1.0, description="learning-rate factor applied every decay_samples")
     decay_samples: int = Field(8000, ge=1)
     level_weights: tuple[float, float, float, float] = (0.02, 0.04, 0.08, 0.16)
@@ -153,7 +153,7 @@ class Trainer:
         self.config, self.files, self.out, self.device, self.log = config, files, out, device, log
         torch.manual_seed(config.seed)
         self.network = AsfNet(config.network).to(device)
-        self.optimizer = torch.optim.Adam(self.network.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
+        self.optimizer = torch.optim.AdamW(self.network.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
         decay_steps = max(1, config.decay_samples // config.batch_size)
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, step_size=decay_steps, gamma=config.decay)
         self.step = 0
