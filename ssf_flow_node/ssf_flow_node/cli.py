@@ -22,7 +22,9 @@ def register(groups: CommandGroups) -> None:
     estimate = flow_commands.add_parser(
         "estimate", help="scene flow for two scan files (.npy, KITTI .bin, .pcd, .ply)",
         description="Flow for every finite point of PC1 (points with NaN/Inf coordinates are dropped on reading), "
-        "written as float32 (N, 3) .npy: PC1 + flow lies on PC2's surfaces, in PC1's sensor frame.")
+        "written as float32 (N, 3) .npy: PC1 + flow lies on PC2's surfaces, in PC1's sensor frame. Made for whole "
+        "scans: the estimator spends its 8192 points on non-ground structure within 35 m (-p "
+        "preprocess.remove_ground=false -p preprocess.max_range=60 for scans already cut).")
     estimate.add_argument("pc1", type=Path, help="scan t")
     estimate.add_argument("pc2", type=Path, help="scan t+1")
     estimate.add_argument("--mask", type=Path, help=".npy or text file: one dynamic probability (0..1) per point of PC1")
