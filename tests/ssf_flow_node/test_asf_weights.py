@@ -9,7 +9,7 @@ from ssf_common.errors import DataError
 from ssf_flow_node.core.asf.checkpoint import shipped_weights
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import MaskStrategy
-from ssf_flow_node.core.estimator import FlowConfig, make_estimator
+from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 from ssf_flow_node.core.metrics import score_flow
 from ssf_flow_node.core.synthetic import synthetic_pair
 
@@ -30,7 +30,10 @@ def test_asf_defaults_to_the_explicit_strategy():
 
 
 def test_asf_keeps_the_ego_motion_on_a_synthetic_pair(pair):
-    result = make_estimator("asf").estimate(pair.pc1, pair.pc2, pair.dynamic1.astype(np.float32))
+    """Whole scans (ground included) go through the whole-scan preprocessing, as in the node: the network was
+    trained on ground-free pairs."""
+    estimator = make_estimator("asf", build(FlowConfig, WHOLE_SCAN))
+    result = estimator.estimate(pair.pc1, pair.pc2, pair.dynamic1.astype(np.float32))
     assert result.flow.shape == pair.pc1.shape and np.isfinite(result.flow).all()
     scores = score_flow(result.flow, pair.flow, pair.dynamic1)
     assert scores.static.epe3d < 0.1
