@@ -9,6 +9,7 @@ WORKSPACE_PACKAGES = (
     "ssf_odom_node",
     "ssf_planner_node",
     "sim_bridge",
+    "ssf_eval",
 )
 
 

@@ -26,5 +26,8 @@ setup(
         "console_scripts": [
             "sim_bridge = sim_bridge.node:main",
         ],
+        "ssf.commands": [
+            "sim = sim_bridge.cli:register",
+        ],
     },
 )

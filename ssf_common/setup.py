@@ -27,5 +27,8 @@ setup(
         "console_scripts": [
             "ssf = ssf_common.cli:main",
         ],
+        "ssf.commands": [
+            "common = ssf_common.commands:register",
+        ],
     },
 )

@@ -26,5 +26,8 @@ setup(
         "console_scripts": [
             "ssf_flow_node = ssf_flow_node.node:main",
         ],
+        "ssf.commands": [
+            "flow = ssf_flow_node.cli:register",
+        ],
     },
 )

@@ -57,6 +57,8 @@ def register(groups: CommandGroups) -> None:
     export.add_argument("--scenario", required=True, help="shipped scenario name or a YAML file")
     export.add_argument("--seed", type=int, default=None)
     export.add_argument("--frames", type=int, required=True, help="number of consecutive pairs")
+    export.add_argument("--warmup", type=float, default=2.0, metavar="S",
+                        help="simulated seconds before the first pair, so that the traffic is moving (default 2)")
     export.add_argument("--out", type=Path, required=True)
     add_protocol_options(export)
     export.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override")
@@ -169,7 +171,7 @@ def add_protocol_options(parser: argparse.ArgumentParser) -> None:
                         help="paper: ground removed, 35 m range, 8192 points (the scene-flow benchmarks' KITTI "
                         "protocol); raw: whole scans, ground included (default paper)")
     parser.add_argument("--points", type=int, help="points per scan (default 8192)")
-    parser.add_argument("--sampling", choices=("random", "fps"), help="how the points are picked (default random)")
+    parser.add_argument("--sampling", choices=("random", "voxel", "fps"), help="how the points are picked (default random)")
 
 
 def protocol_from_args(args: argparse.Namespace):
@@ -191,7 +193,7 @@ def _export(args: argparse.Namespace) -> int:
     def progress(done: int, total: int) -> None:
         print(f"pair {done}/{total}", file=sys.stderr)
 
-    out = export(scenario, args.out, args.seed, args.frames, protocol, progress=progress)
+    out = export(scenario, args.out, args.seed, args.frames, protocol, progress=progress, warmup_s=args.warmup)
     print(out)
     return 0
 

@@ -6,6 +6,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ssf_common.geometry.se3 import relative_pose
+
 MOVING_THRESHOLD = 1e-4
 
 
@@ -15,11 +17,6 @@ class FlowTruth:
 
     flow: np.ndarray  # (N, 3) float32, sensor frame of scan t
     dynamic: np.ndarray  # (N,) bool, point on an agent that moved between t and t+1
-
-
-def relative_motion(pose_t: np.ndarray, pose_next: np.ndarray) -> np.ndarray:
-    """T = pose_{t+1}^-1 . pose_t: maps sensor-t coordinates of a static point to sensor-(t+1) coordinates."""
-    return np.linalg.inv(pose_next) @ pose_t
 
 
 def scene_flow(
@@ -35,7 +32,7 @@ def scene_flow(
     instance holds agent index + 1 (0 = static); agent poses are world <- agent (M, 4, 4) at t and t+1.
     """
     p = points.astype(np.float64)
-    to_next = relative_motion(pose_t, pose_next)
+    to_next = relative_pose(pose_t, pose_next)
     flow = np.einsum("ij,kj->ik", p, to_next[:3, :3]) + to_next[:3, 3] - p  # einsum: BLAS threads stall after Open3D
     dynamic = np.zeros(len(p), bool)
     on_agent = np.flatnonzero(instance > 0)

@@ -11,14 +11,17 @@ from sim_bridge.ground_truth import FlowTruth
 from sim_bridge.lidar import Scan
 from sim_bridge.simulator import EpisodeStatus
 from sim_bridge.traffic import AgentKind, AgentStates
-from ssf_common import geometry, messages
+from ssf_common import messages
+from ssf_common import pose_msgs
+from ssf_common.conversions import obstacles_to_msg
+from ssf_common.records import ObstacleKind, Obstacles
 from ssf_common.pointcloud import xyz_to_cloud
 
 WORLD_FRAME = "world"
 BASE_FRAME = "base_link"
 LIDAR_FRAME = "lidar"
 
-_OBSTACLE_KIND = {AgentKind.VEHICLE: 1, AgentKind.PEDESTRIAN: 2}
+_OBSTACLE_KIND = {AgentKind.VEHICLE: ObstacleKind.VEHICLE, AgentKind.PEDESTRIAN: ObstacleKind.PEDESTRIAN}
 
 
 def scan_cloud(scan: Scan, stamp_ns: int) -> Any:
@@ -45,14 +48,14 @@ def truth_cloud(scan: Scan, truth: FlowTruth, stamp_ns: int) -> Any:
 def odometry(base_pose: np.ndarray, ego: EgoState, stamp_ns: int) -> Any:
     """nav_msgs/Odometry of base_link in the world frame, twist in base_link."""
     twist = messages.msg_type("geometry_msgs/msg/Twist")(
-        linear=geometry.vector3_msg(np.array([ego.speed, 0.0, 0.0])),
-        angular=geometry.vector3_msg(np.array([0.0, 0.0, ego.yaw_rate])),
+        linear=pose_msgs.vector3_msg(np.array([ego.speed, 0.0, 0.0])),
+        angular=pose_msgs.vector3_msg(np.array([0.0, 0.0, ego.yaw_rate])),
     )
     return messages.msg_type("nav_msgs/msg/Odometry")(
         header=messages.header(stamp_ns, WORLD_FRAME),
         child_frame_id=BASE_FRAME,
         pose=messages.msg_type("geometry_msgs/msg/PoseWithCovariance")(
-            pose=geometry.pose_msg(base_pose), covariance=np.zeros(36)
+            pose=pose_msgs.pose_msg(base_pose), covariance=np.zeros(36)
         ),
         twist=messages.msg_type("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)),
     )
@@ -63,37 +66,26 @@ def transforms(base_pose: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int) -> 
     mount = np.linalg.inv(base_pose) @ lidar_pose
     return messages.msg_type("tf2_msgs/msg/TFMessage")(
         transforms=[
-            geometry.transform_stamped_msg(base_pose, stamp_ns, WORLD_FRAME, BASE_FRAME),
-            geometry.transform_stamped_msg(mount, stamp_ns, BASE_FRAME, LIDAR_FRAME),
+            pose_msgs.transform_stamped_msg(base_pose, stamp_ns, WORLD_FRAME, BASE_FRAME),
+            pose_msgs.transform_stamped_msg(mount, stamp_ns, BASE_FRAME, LIDAR_FRAME),
         ]
     )
 
 
 def obstacles(agents: AgentStates, stamp_ns: int) -> Any:
     """Every agent as ssf_interfaces/ObstacleArray in the world frame (ground truth standing in for perception)."""
-    obstacle = messages.msg_type("ssf_interfaces/msg/Obstacle")
-    items = []
-    for i in range(len(agents)):
-        centre = agents.position[i].copy()
-        centre[2] += agents.size[i, 2] / 2
-        pose = messages.msg_type("geometry_msgs/msg/Pose")(
-            position=geometry.point_msg(centre), orientation=geometry.yaw_quaternion_msg(float(agents.yaw[i]))
-        )
-        items.append(
-            obstacle(
-                id=int(agents.ids[i]),
-                kind=_OBSTACLE_KIND.get(AgentKind(int(agents.kind[i])), 0),
-                pose=pose,
-                size=geometry.vector3_msg(agents.size[i]),
-                velocity=geometry.vector3_msg(np.array([agents.velocity[i, 0], agents.velocity[i, 1], 0.0])),
-                yaw_rate=float(agents.yaw_rate[i]),
-                num_points=0,
-                confidence=1.0,
-            )
-        )
-    return messages.msg_type("ssf_interfaces/msg/ObstacleArray")(
-        header=messages.header(stamp_ns, WORLD_FRAME), obstacles=items
-    )
+    return obstacles_to_msg(agent_obstacles(agents, stamp_ns))
+
+
+def agent_obstacles(agents: AgentStates, stamp_ns: int) -> Obstacles:
+    """Every agent as an obstacle record in the world frame (boxes centred at half height, exact velocities)."""
+    centres = agents.position.astype(np.float64).copy()
+    centres[:, 2] += agents.size[:, 2] / 2
+    velocities = np.zeros((len(agents), 3))
+    velocities[:, :2] = agents.velocity[:, :2]
+    kinds = np.array([_OBSTACLE_KIND.get(AgentKind(int(kind)), ObstacleKind.UNKNOWN) for kind in agents.kind], np.uint8)
+    return Obstacles(stamp_ns, WORLD_FRAME, ids=agents.ids, kinds=kinds, centres=centres, sizes=agents.size,
+                     yaws=agents.yaw, velocities=velocities, yaw_rates=agents.yaw_rate)
 
 
 def markers(agents: AgentStates, stamp_ns: int) -> Any:
@@ -115,9 +107,9 @@ def markers(agents: AgentStates, stamp_ns: int) -> Any:
                 type=1 if is_vehicle else 3,  # CUBE, CYLINDER
                 action=0,
                 pose=messages.msg_type("geometry_msgs/msg/Pose")(
-                    position=geometry.point_msg(centre), orientation=geometry.yaw_quaternion_msg(float(agents.yaw[i]))
+                    position=pose_msgs.point_msg(centre), orientation=pose_msgs.yaw_quaternion_msg(float(agents.yaw[i]))
                 ),
-                scale=geometry.vector3_msg(agents.size[i]),
+                scale=pose_msgs.vector3_msg(agents.size[i]),
                 color=color(r=0.2, g=0.5, b=0.9, a=0.8) if is_vehicle else color(r=0.95, g=0.6, b=0.1, a=0.9),
                 lifetime=duration(sec=0, nanosec=300_000_000),
                 frame_locked=False,

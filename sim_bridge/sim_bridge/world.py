@@ -3,28 +3,16 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import IntEnum
 
 import numpy as np
 from scipy.spatial import cKDTree
 
 from sim_bridge.meshes import BOX, CYLINDER, SPHERE, TriangleSoup, instances
 from sim_bridge.scenario import Scenario
+from ssf_common.dataset.pairs import PointClass  # noqa: F401  (the simulator labels its points with it)
 from ssf_common.errors import ConfigError
 
 SAMPLE_STEP = 0.25
-
-
-class PointClass(IntEnum):
-    """Semantic class of a LiDAR point (and of the surface it hit)."""
-
-    GROUND = 0
-    BUILDING = 1
-    POLE = 2
-    VEGETATION = 3
-    PARKED_CAR = 4
-    VEHICLE = 5
-    PEDESTRIAN = 6
 
 
 @dataclass(frozen=True)

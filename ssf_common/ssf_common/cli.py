@@ -1,22 +1,20 @@
-"""The `ssf` command line: one entry point, with subcommands contributed by each package."""
+"""The `ssf` command line: one entry point, with subcommands contributed by each installed package.
+
+A package contributes commands through an entry point in the `ssf.commands` group that names a function
+`register(groups: CommandGroups) -> None`; imports stay lazy inside the command functions so that `ssf --help` is
+fast. Whatever subset of the packages is installed, `ssf` offers exactly their commands."""
 
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 from dataclasses import dataclass
+from importlib import metadata
 from typing import Sequence
 
 from ssf_common.errors import SsfError
 
-# Each module has `register(groups: CommandGroups) -> None` that adds its commands; imports stay lazy
-# inside command functions so `ssf --help` is fast.
-COMMAND_MODULES = (
-    "ssf_common.commands",
-    "sim_bridge.cli",
-    "ssf_flow_node.cli",
-)
+COMMANDS_GROUP = "ssf.commands"
 
 
 @dataclass(frozen=True)
@@ -42,14 +40,18 @@ def build_parser() -> argparse.ArgumentParser:
         eval=_group(top, "eval", "the paper's tables on simulator or recorded data, method beside method"),
         bench=_group(top, "bench", "speed and memory figures (medians, JSON with --json)"),
     )
-    for module_name in COMMAND_MODULES:
+    from ssf_common.commands import register
+
+    register(groups)  # this package's own commands come first
+    for entry in sorted(metadata.entry_points(group=COMMANDS_GROUP), key=lambda entry: entry.name):
+        if entry.value.startswith("ssf_common."):
+            continue
         try:
-            module = importlib.import_module(module_name)
-        except ModuleNotFoundError as err:
-            if err.name and module_name.startswith(err.name):
-                continue  # package not part of this install
-            raise
-        module.register(groups)
+            contribute = entry.load()
+        except ModuleNotFoundError as err:  # an entry point left behind by a package that is gone
+            print(f"ssf: note: commands of '{entry.name}' are unavailable ({err})", file=sys.stderr)
+            continue
+        contribute(groups)
     return parser
 
 

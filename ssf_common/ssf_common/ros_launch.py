@@ -4,17 +4,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from ssf_common.launch import GraphSpec, NodeSpec
+from ssf_common.launch import GraphSpec, NodeSpec, _console_script
 
-# Which ament package installs each executable (where `ros2 run` finds it).
-EXECUTABLE_PACKAGES = {
-    "sim_bridge": "sim_bridge",
-    "ssf_flow_node": "ssf_flow_node",
-    "ssf_seg_node": "ssf_seg_node",
-    "ssf_fusion_node": "ssf_seg_node",
-    "ssf_odom_node": "ssf_odom_node",
-    "ssf_planner_node": "ssf_planner_node",
-}
+def package_of(executable: str) -> str:
+    """The ament package that installs an executable (`pkg/executable`, or the package of its console script)."""
+    if "/" in executable:
+        return executable.split("/", 1)[0]
+    module, _ = _console_script(executable)
+    return module.split(".", 1)[0]
 
 
 def launch_actions(graph: GraphSpec, record_dir: str | None = None) -> list[Any]:
@@ -38,9 +35,9 @@ def _node_action(node_class: Any, spec: NodeSpec, global_parameters: dict[str, A
     if spec.params_file:
         parameters.insert(0, spec.params_file)
     return node_class(
-        package=EXECUTABLE_PACKAGES[spec.executable],
-        executable=spec.executable,
-        name=spec.name or spec.executable,
+        package=package_of(spec.executable),
+        executable=spec.executable.split("/")[-1],
+        name=spec.name or spec.executable.split("/")[-1],
         parameters=parameters,
         remappings=list(spec.remappings.items()),
         arguments=list(spec.arguments),

@@ -10,15 +10,15 @@ from typing import Any
 import numpy as np
 
 from ssf_common import messages, topics
+from ssf_common.conversions import mask_from_cloud, scene_flow_to_cloud
 from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
-from ssf_common.pointcloud import cloud_to_array, decode_cloud_or_none, xyz_to_cloud
+from ssf_common.pointcloud import decode_cloud_or_none
+from ssf_common.records import SceneFlow
 from ssf_common.worker import LatestWorker
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 
 SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
-MASK_FIELD = "mask"  # probability that a point moves, in [0, 1]
-ITERATION_FIELD = "iteration"
 
 
 @dataclass(frozen=True)
@@ -38,33 +38,6 @@ class FlowJob:
     next_scan: Scan
     mask: np.ndarray | None
     iteration: int
-
-
-def flow_cloud(job: FlowJob, flow: np.ndarray) -> Any:
-    """PointCloud2 of scan t with its flow and the iteration it answers (constant per point)."""
-    return xyz_to_cloud(
-        job.scan.xyz,
-        messages.header(job.scan.stamp_ns, job.scan.frame_id),
-        flow_x=flow[:, 0],
-        flow_y=flow[:, 1],
-        flow_z=flow[:, 2],
-        iteration=np.full(len(flow), job.iteration, dtype=np.uint32),
-    )
-
-
-def read_mask_hint(msg: Any, expected_points: int) -> tuple[np.ndarray, int]:
-    """Mask and iteration from a /ssf/mask_hint cloud, checked against the scan it refers to."""
-    points = cloud_to_array(msg)
-    names = points.dtype.names or ()
-    for name in (MASK_FIELD, ITERATION_FIELD):
-        if name not in names:
-            raise MessageError(f"mask hint has no '{name}' field (fields: {', '.join(names)})")
-    if len(points) != expected_points:
-        raise MessageError(f"mask hint has {len(points)} points but the scan it refers to has {expected_points}")
-    mask = np.asarray(points[MASK_FIELD], dtype=np.float32)
-    if not np.isfinite(mask).all() or mask.min() < 0 or mask.max() > 1:
-        raise MessageError("mask hint values must be finite probabilities in [0, 1]")
-    return mask, int(points[ITERATION_FIELD][0]) if len(points) else 0
 
 
 class FlowNode(Node):
@@ -106,11 +79,11 @@ class FlowNode(Node):
             self.get_logger().warning(f"mask hint for stamp {stamp} matches no recent scan pair; dropped")
             return
         try:
-            mask, iteration = read_mask_hint(msg, len(pair[0].xyz))
+            hint = mask_from_cloud(msg, len(pair[0].xyz))
         except MessageError as err:
             self.get_logger().warning(f"dropped a message on {topics.MASK_HINT}: {err}")
             return
-        self.worker.submit("hint", FlowJob(pair[0], pair[1], mask, iteration))
+        self.worker.submit("hint", FlowJob(pair[0], pair[1], hint.dynamic_prob, hint.iteration))
 
     def _pair_of(self, stamp_ns: int) -> tuple[Scan, Scan] | None:
         scans = list(self.scans)
@@ -123,7 +96,8 @@ class FlowNode(Node):
         start = time.perf_counter()
         result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, job.mask)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
-        self.flow_pub.publish(flow_cloud(job, result.flow))
+        flow = SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz, result.flow, job.iteration)
+        self.flow_pub.publish(scene_flow_to_cloud(flow))
 
     def _report(self) -> None:
         if not self._compute_ms:

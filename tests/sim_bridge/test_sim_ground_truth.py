@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sim_bridge.ground_truth import relative_motion
+from ssf_common.geometry.se3 import relative_pose as relative_motion
 from sim_bridge.lidar import surface_distance
 from sim_bridge.meshes import TriangleSoup
 from sim_bridge.simulator import Simulator

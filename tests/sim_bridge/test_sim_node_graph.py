@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
-from ssf_common import geometry, messages
+from ssf_common import messages
+from ssf_common import pose_msgs
 from ssf_common.bags import open_bag
 from ssf_common.pointcloud import cloud_to_array
 
@@ -73,10 +74,10 @@ def test_every_step_is_recorded_and_the_episode_summarised(recording):
 
 def test_recorded_ground_truth_flow_is_the_recorded_ego_motion_for_static_points(recording):
     found = read_all(recording / "bag")
-    base_poses = {messages.stamp_ns(m.header.stamp): geometry.matrix_from_pose(m.pose.pose) for m in found["/sim/ground_truth/odom"]}
+    base_poses = {messages.stamp_ns(m.header.stamp): pose_msgs.matrix_from_pose(m.pose.pose) for m in found["/sim/ground_truth/odom"]}
     mount_tf = next(t for m in found["/tf"] for t in m.transforms if t.child_frame_id == "lidar").transform
     mount = np.eye(4)
-    mount[:3, :3] = geometry.matrix_from_pose(
+    mount[:3, :3] = pose_msgs.matrix_from_pose(
         messages.msg_type("geometry_msgs/msg/Pose")(
             position=messages.msg_type("geometry_msgs/msg/Point")(x=0.0, y=0.0, z=0.0), orientation=mount_tf.rotation
         )

@@ -32,6 +32,7 @@ def make_obstacles(i: int):
             pose=pose_type(position=point_type(x=1.5 * i, y=-2.0 * k, z=0.25), orientation=quat_type(x=0, y=0, z=0, w=1)),
             size=vec_type(x=4.5, y=1.8, z=1.5),
             velocity=vec_type(x=3.0 + i, y=0.5 * k, z=0.0),
+            velocity_covariance=np.diag([0.1, 0.2, 0.3]).reshape(9) * (1 + k),
             yaw_rate=0.125 * k,
             num_points=100 + i,
             confidence=0.5,

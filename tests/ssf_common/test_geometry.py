@@ -1,31 +1,191 @@
-"""Pose and transform messages round-trip with 4x4 matrices."""
+"""The shared geometry against hand-computed cases."""
+
+from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
-from ssf_common import geometry, messages
+from ssf_common.geometry.boxes import bounding_box, box_corners, min_area_rectangle
+from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, voxel_components
+from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
+from ssf_common.geometry.ground import ground_mask, height_above_ground
+from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
+from ssf_common.geometry.neighbours import chamfer_distance, knn, nearest, propagate
+from ssf_common.geometry.sampling import Sampling, farthest_point_indices, greedy_farthest_indices, sample_indices, voxel_indices
+from ssf_common.geometry.se3 import (compose, invert, make_pose, relative_pose, rigid_flow, rotation_angle,
+                                     transform_points, yaw_of, yaw_translate)
 
 
-def test_pose_round_trip_through_cdr():
+def random_transform(rng: np.random.Generator) -> np.ndarray:
     matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_euler("ZYX", [0.7, -0.1, 0.05]).as_matrix()
-    matrix[:3, 3] = [12.5, -3.25, 0.8]
-    raw = messages.serialize(geometry.pose_msg(matrix), "geometry_msgs/msg/Pose")
-    back = geometry.matrix_from_pose(messages.deserialize(raw, "geometry_msgs/msg/Pose"))
-    np.testing.assert_allclose(back, matrix, atol=1e-12)
-    assert abs(geometry.yaw_of(back) - 0.7) < 1e-12
+    matrix[:3, :3] = Rotation.random(random_state=int(rng.integers(1 << 30))).as_matrix()
+    matrix[:3, 3] = rng.normal(0, 5, 3)
+    return matrix
 
 
-def test_yaw_quaternion_matches_the_general_conversion():
-    for yaw in (-3.0, -0.5, 0.0, 1.2, 3.1):
-        matrix = np.eye(4)
-        matrix[:3, :3] = Rotation.from_euler("z", yaw).as_matrix()
-        a, b = geometry.yaw_quaternion_msg(yaw), geometry.quaternion_msg(matrix[:3, :3])
-        qa, qb = np.array([a.x, a.y, a.z, a.w]), np.array([b.x, b.y, b.z, b.w])
-        assert min(np.abs(qa - qb).max(), np.abs(qa + qb).max()) < 1e-12
+def test_se3_by_hand():
+    quarter = make_pose(1.0, 2.0, 3.0, np.pi / 2)
+    np.testing.assert_allclose(transform_points(quarter, np.array([[1.0, 0.0, 0.0]])), [[1.0, 3.0, 3.0]], atol=1e-6)
+    np.testing.assert_allclose(rigid_flow(quarter, np.zeros((1, 3))), [[1.0, 2.0, 3.0]])
+    assert yaw_of(quarter) == pytest.approx(np.pi / 2) and rotation_angle(quarter) == pytest.approx(np.pi / 2)
+    np.testing.assert_allclose(compose(quarter, invert(quarter)), np.eye(4), atol=1e-12)
+    np.testing.assert_allclose(invert(quarter), np.linalg.inv(quarter), atol=1e-12)
+    stack = np.stack([quarter, make_pose(yaw=0.3)])
+    np.testing.assert_allclose(invert(stack), np.linalg.inv(stack), atol=1e-12)
+    # a sensor moving 1 m forward sees a static point 1 m closer
+    ego = relative_pose(make_pose(0, 0, 0), make_pose(1, 0, 0))
+    np.testing.assert_allclose(transform_points(ego, np.array([[10.0, 0, 0]])), [[9.0, 0, 0]])
+    moved = yaw_translate(np.array([[1.0, 0, 0], [0, 1.0, 0]]), np.array([np.pi / 2, 0.0]), np.array([[0, 0, 1.0], [1, 0, 0]]))
+    np.testing.assert_allclose(moved, [[0, 1, 1], [1, 1, 0]], atol=1e-12)
 
 
-def test_transform_stamped_names_parent_and_child():
-    msg = geometry.transform_stamped_msg(np.eye(4), 1_500_000_000, "map", "base_link")
-    assert msg.header.frame_id == "map" and msg.child_frame_id == "base_link"
-    assert (msg.header.stamp.sec, msg.header.stamp.nanosec) == (1, 500_000_000)
+def test_weighted_kabsch_recovers_a_motion_and_ignores_zero_weights():
+    rng = np.random.default_rng(0)
+    truth = random_transform(rng)
+    source = rng.normal(size=(200, 3))
+    target = source @ truth[:3, :3].T + truth[:3, 3]
+    target[:40] += rng.normal(0, 3.0, (40, 3))  # outliers ...
+    weights = np.ones(200)
+    weights[:40] = 0.0  # ... that carry no weight
+    np.testing.assert_allclose(weighted_kabsch(source, target, weights), truth, atol=1e-9)
+    assert not np.allclose(weighted_kabsch(source, target), truth, atol=1e-3)
+
+
+def test_kabsch_fixes_reflections_and_degenerate_sets_give_identity():
+    rng = np.random.default_rng(1)
+    source = rng.normal(size=(50, 3))
+    mirrored = source * [1, 1, -1]  # the best orthogonal map is a reflection; a rotation must come out
+    rotation = weighted_kabsch(source, mirrored)[:3, :3]
+    assert np.linalg.det(rotation) == pytest.approx(1.0)
+    np.testing.assert_array_equal(weighted_kabsch(source[:2], source[:2] + 1.0), np.eye(4))
+    np.testing.assert_array_equal(weighted_kabsch(source, source + 1, np.zeros(50)), np.eye(4))
+    assert np.isfinite(weighted_kabsch(np.full((5, 3), np.nan), source[:5])).all()
+
+
+def test_batched_kabsch_fits_each_label():
+    rng = np.random.default_rng(2)
+    truths = [random_transform(rng) for _ in range(3)]
+    labels = np.repeat(np.arange(4), 30)  # label 3 gets only 2 weighted points
+    source = rng.normal(size=(120, 3))
+    target = source.copy()
+    for k, truth in enumerate(truths):
+        on = labels == k
+        target[on] = source[on] @ truth[:3, :3].T + truth[:3, 3]
+    weights = np.ones(120)
+    weights[np.flatnonzero(labels == 3)[2:]] = 0.0
+    fitted = batched_kabsch(source, target, labels, 4, weights)
+    for k, truth in enumerate(truths):
+        np.testing.assert_allclose(fitted[k], truth, atol=1e-9)
+    np.testing.assert_array_equal(fitted[3], np.eye(4))
+
+
+def test_planar_fits_recover_yaw_and_translation():
+    rng = np.random.default_rng(3)
+    source = rng.normal(size=(100, 3))
+    labels = np.repeat([0, 1], 50)
+    yaw_true, shift = np.array([0.05, -0.08]), np.array([[1.0, 0.5, 0.0], [-0.3, 0.2, 0.1]])
+    target = yaw_translate(source, yaw_true[labels], shift[labels])
+    yaw, translation = planar_kabsch(source, target, labels, 2)
+    np.testing.assert_allclose(yaw, yaw_true, atol=1e-9)
+    np.testing.assert_allclose(translation, shift, atol=1e-9)
+    clipped, _ = planar_kabsch(source, target, labels, 2, max_yaw=0.01)
+    np.testing.assert_allclose(np.abs(clipped), 0.01)
+    # Gauss-Newton on point-to-plane residuals with full normals converges to the same motion
+    yaw_est, trans_est = np.zeros(2), np.zeros((2, 3))
+    normals = rng.normal(size=(100, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    for _ in range(6):
+        moved = yaw_translate(source, yaw_est[labels], trans_est[labels])
+        yaw_est, trans_est = planar_plane_step(moved, target, normals, labels, yaw_est, trans_est, 2, point_weight=1.0)
+    np.testing.assert_allclose(yaw_est, yaw_true, atol=1e-6)
+    np.testing.assert_allclose(trans_est, shift, atol=1e-6)
+
+
+def test_label_reductions_by_hand():
+    labels = np.array([0, 0, 1, 2, 2, 2])
+    values = np.array([[0.0, 0, 0], [2, 0, 0], [5, 5, 5], [1, 0, 0], [3, 4, 0], [2, 2, 0]])
+    np.testing.assert_allclose(label_means(values, labels, 4), [[1, 0, 0], [5, 5, 5], [2, 2, 0], [0, 0, 0]])
+    np.testing.assert_allclose(label_means(values[:, 0], labels, 3, weights=np.array([1, 3, 1, 1, 1, 0.0])), [1.5, 5, 2])
+    np.testing.assert_allclose(label_extents(values, labels, 4), [2, 0, 4, 0])
+    np.testing.assert_array_equal(ragged_arange(np.array([2, 0, 3])), [0, 1, 0, 1, 2])
+    picked = pick_per_label(labels, np.array([True, False, True]), 2, np.random.default_rng(0))
+    assert sorted(labels[picked].tolist()) == [0, 0, 2, 2]
+
+
+def test_sampling_one_vocabulary():
+    rng = np.random.default_rng(0)
+    points = np.concatenate([rng.normal(0, 0.1, (2000, 3)), rng.normal(10, 0.1, (20, 3))]).astype(np.float32)
+    random = sample_indices(points, 64, np.random.default_rng(1), Sampling.RANDOM)
+    assert np.array_equal(random, sample_indices(points, 64, np.random.default_rng(1), "random"))
+    assert len(np.unique(random)) == 64 and np.all(np.diff(random) > 0)
+    fps = sample_indices(points, 8, np.random.default_rng(1), Sampling.FPS)
+    assert (np.linalg.norm(points[fps], axis=1) > 5).sum() >= 1  # the far cluster is picked
+    grid = np.array([[0.01, 0, 0], [0.02, 0, 0], [0.5, 0, 0], [0.51, 0, 0]])
+    np.testing.assert_array_equal(voxel_indices(grid, 0.1), [0, 2])
+    assert len(sample_indices(grid, 10, np.random.default_rng(0), Sampling.VOXEL)) == 2
+    few = sample_indices(points[:10], 32, np.random.default_rng(1), pad=True)
+    assert len(few) == 32 and set(few) == set(range(10))
+
+
+def test_farthest_point_sampling_matches_the_greedy_definition():
+    points = np.random.default_rng(4).normal(size=(3000, 3)).astype(np.float32)
+    fast = farthest_point_indices(points, 256, start=17)
+    greedy = greedy_farthest_indices(points.astype(np.float64), 256, start=17)
+    assert greedy[0] == 17 and np.array_equal(fast, np.sort(greedy))
+    duplicated = np.repeat(points[:5], 3, axis=0)
+    assert len(np.unique(farthest_point_indices(duplicated, 8))) == 8
+
+
+def test_neighbours_by_hand():
+    reference = np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0]])
+    found = knn(reference, np.array([[0.9, 0, 0]]), 2)
+    np.testing.assert_array_equal(found.index, [[1, 0]])
+    np.testing.assert_allclose(found.distance, [[0.1, 0.9]])
+    far = nearest(reference, np.array([[3.0, 0, 0]]), radius=1.0)
+    assert np.isinf(far.distance[0]) and far.index[0] == 3
+    values = np.array([[1.0], [3.0], [100.0]])
+    np.testing.assert_allclose(propagate(reference, values, np.array([[0.25, 0, 0]]), k=2), [[1.5]])
+    np.testing.assert_allclose(propagate(reference, values, np.array([[3.0, 0, 0]]), k=2, radius=0.5), [[0.0]])
+    assert chamfer_distance(reference, reference + [0, 0, 1.0]) == pytest.approx(2.0)
+
+
+def test_clustering():
+    rng = np.random.default_rng(5)
+    blobs = np.concatenate([rng.uniform(0, 1, (100, 3)), rng.uniform(0, 1, (50, 3)) + [5, 0, 0]])
+    labels, count = voxel_components(blobs, 0.5)
+    assert count == 2 and len(np.unique(labels[:100])) == 1 and labels[0] != labels[-1]
+    density = dbscan(blobs, eps=0.6, min_samples=4)
+    assert density.count == 2 and (density.labels >= 0).all()
+    hierarchy = hdbscan(blobs, min_cluster_size=20)
+    assert hierarchy.count == 2
+    ranked = relabel_by_size(np.array([4, 4, 7, 7, 7, -1]))
+    np.testing.assert_array_equal(ranked.labels, [1, 1, 0, 0, 0, -1])
+    assert voxel_components(np.zeros((0, 3)), 0.5).count == 0
+
+
+def test_ground_height_on_a_slope():
+    xy = np.stack(np.meshgrid(np.arange(0, 20, 0.5), np.arange(0, 20, 0.5)), -1).reshape(-1, 2)
+    ground = np.column_stack([xy, 0.05 * xy[:, 0]])
+    box = np.array([[10.0, 10.0, 0.5 + 1.0], [10.2, 10.0, 0.5 + 1.5]])
+    points = np.concatenate([ground, box])
+    height = height_above_ground(points, cell=2.0)
+    assert np.abs(height[: len(ground)]).max() < 0.3 and (height[len(ground):] > 0.9).all()
+    flags = ground_mask(points)
+    assert flags[: len(ground)].all() and not flags[len(ground):].any()
+
+
+def test_min_area_rectangle_of_a_rotated_box():
+    length, width, yaw = 4.0, 2.0, 0.4
+    corners = box_corners(np.array([3.0, -1.0]), length, width, yaw)
+    inside = np.random.default_rng(6).uniform(-0.5, 0.5, (200, 2)) * [length, width]
+    points = np.concatenate([corners, inside @ np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]]) + [3.0, -1.0]])
+    centre, sides, heading = min_area_rectangle(points)
+    np.testing.assert_allclose(centre, [3.0, -1.0], atol=1e-9)
+    np.testing.assert_allclose(sides, [length, width], atol=1e-9)
+    assert heading == pytest.approx(yaw)
+    box = bounding_box(np.column_stack([points, np.linspace(0.0, 1.5, len(points))]))
+    np.testing.assert_allclose(box.size, [length, width, 1.5], atol=1e-9)
+    assert box.centre[2] == pytest.approx(0.75)
+    centre, sides, _ = min_area_rectangle(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]))  # collinear
+    np.testing.assert_allclose(sides, [np.sqrt(8), 0.0], atol=1e-9)

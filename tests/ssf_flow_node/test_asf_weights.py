@@ -10,8 +10,8 @@ from ssf_flow_node.core.asf.checkpoint import shipped_weights
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import MaskStrategy
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
-from ssf_flow_node.core.metrics import score_flow
-from ssf_flow_node.core.synthetic import synthetic_pair
+from ssf_common.dataset.synthetic import synthetic_pair
+from ssf_eval.flow.metrics import score_flow
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,4 @@
-"""The `ssf flow estimate`, `ssf eval flow`, `ssf train flow` and `ssf bench flow` commands end to end."""
+"""The `ssf flow estimate` and `ssf train flow` commands end to end."""
 
 import json
 
@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from ssf_common.cli import main
-from ssf_flow_node.core.synthetic import synthetic_pair
+from ssf_common.dataset.pairs import write_pair
+from ssf_common.dataset.synthetic import synthetic_pair
 
 
 @pytest.fixture(scope="module")
@@ -18,8 +19,7 @@ def pair():
 def export_dir(tmp_path_factory, pair):
     folder = tmp_path_factory.mktemp("export")
     for index in range(2):
-        np.savez(folder / f"pair_{index:04d}.npz", pc1=pair.pc1, pc2=pair.pc2, flow=pair.flow, dynamic1=pair.dynamic1,
-                 instance1=pair.instance1, pose1=np.eye(4), pose2=np.linalg.inv(pair.ego))
+        write_pair(folder / f"pair_{index:04d}.npz", pair)
     return folder
 
 
@@ -51,45 +51,12 @@ def test_estimate_reports_bad_inputs_in_one_line(tmp_path, pair, capsys):
     assert "broken.npy" in errors[0] and "mask" in errors[1] and "preprocess.points" in errors[2]
 
 
-def test_eval_prints_table_and_writes_json(export_dir, tmp_path, capsys):
-    out = tmp_path / "eval.json"
-    code = main(["eval", "flow", "--data", str(export_dir), "--estimators", "zero", "ego", "rigid", "--json", str(out)])
-    assert code == 0
-    table = capsys.readouterr().out
-    assert "dynamic" in table and "rigid" in table
-    results = {entry["estimator"]: entry for entry in json.loads(out.read_text())["results"]}
-    assert set(results) == {"zero", "ego", "rigid"}
-    assert results["rigid"]["dynamic"]["epe3d"] < 0.5 * results["ego"]["dynamic"]["epe3d"]
-    assert results["zero"]["all"]["count"] == 2 * 4096
-
-
-def test_eval_rejects_missing_data(tmp_path, capsys):
-    assert main(["eval", "flow", "--data", str(tmp_path / "nothing"), "--estimators", "zero"]) == 2
-    assert "no such directory" in capsys.readouterr().err
-
-
-def test_bench_reports_median_p95_and_rss(tmp_path):
-    out = tmp_path / "bench.json"
-    assert main(["bench", "flow", "--frames", "2", "--scenario", "synthetic", "--estimators", "zero", "ego",
-                 "--json", str(out)]) == 0
-    figures = json.loads(out.read_text())
-    assert set(figures["estimators"]) == {"zero", "ego"}
-    assert figures["estimators"]["ego"]["ms_p95"] >= figures["estimators"]["ego"]["ms_median"] > 0
-    assert figures["peak_rss_mb"] > 0
-
-
 def test_train_runs_and_resumes(export_dir, tmp_path):
     out = tmp_path / "tiny.pt"
-    tiny = ["--set", "network.points=[128,64,32,16]", "--set", "network.level_widths=[8,16,16,16]",
-            "--set", "network.cost_width=[8,8,8,8]", "--set", "network.flow_width=16", "--set", "points=512"]
+    tiny = ["-p", "network.points:=[128,64,32,16]", "-p", "network.level_widths:=[8,16,16,16]",
+            "-p", "network.cost_width:=[8,8,8,8]", "-p", "network.flow_width:=16", "-p", "points:=512"]
     assert main(["train", "flow", "--data", str(export_dir), "--out", str(out), "--steps", "2", "--batch-size", "1",
                  "--strategy", "points", *tiny]) == 0
     assert main(["train", "flow", "--data", str(export_dir), "--out", str(out), "--resume", str(out), "--steps", "3"]) == 0
     assert main(["flow", "estimate", str(export_dir / "pair_0000.npz"), str(export_dir / "pair_0000.npz"),
                  "--out", str(tmp_path / "x.npy")]) == 2  # .npz is not a scan format
-
-
-def test_eval_on_simulator_pairs(capsys):
-    assert main(["eval", "flow", "--scenario", "urban_100", "--frames", "2", "--estimators", "zero", "rigid"]) == 0
-    table = capsys.readouterr().out
-    assert "urban_100" in table and table.count("dynamic") == 2

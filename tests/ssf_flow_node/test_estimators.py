@@ -7,9 +7,10 @@ from ssf_common.config import build
 from ssf_common.errors import ConfigError
 from ssf_common.scan_io import read_scan
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
-from ssf_flow_node.core.metrics import flow_metrics, score_flow
-from ssf_flow_node.core.registration import rigid_flow
-from ssf_flow_node.core.synthetic import pose, synthetic_pair
+from ssf_common.geometry.se3 import rigid_flow
+from ssf_common.dataset.synthetic import synthetic_pair
+from ssf_common.geometry.se3 import make_pose as pose
+from ssf_eval.flow.metrics import flow_metrics, score_flow
 
 
 @pytest.fixture(scope="module")

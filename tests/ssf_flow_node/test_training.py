@@ -10,9 +10,9 @@ from ssf_common.errors import DataError
 from ssf_flow_node.core.asf import checkpoint
 from ssf_flow_node.core.asf.estimator import AsfFlowEstimator
 from ssf_flow_node.core.asf.network import AsfConfig, AsfNet, MaskStrategy
-from ssf_flow_node.core.data import pair_files, read_pair
+from ssf_common.dataset.pairs import pair_files, read_pair
 from ssf_flow_node.core.estimator import FlowConfig
-from ssf_flow_node.core.synthetic import synthetic_pair
+from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_flow_node.core.training import TrainConfig, Trainer, TrainMode
 
 TINY = AsfConfig(points=(256, 64, 32, 16), neighbours=(8, 8, 8, 4), encoder_width=8, level_widths=(8, 16, 16, 16),

@@ -4,39 +4,36 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator
-from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
-
-from sim_bridge.dataset.kitti import write_bin, write_poses
-from sim_bridge.scenario import Scenario, load_scenario
-from sim_bridge.simulator import Frame, Simulator
-from sim_bridge.world import PointClass
 from pydantic import Field
 
+from sim_bridge.scenario import Scenario, load_scenario
+from sim_bridge.simulator import Frame, Simulator
 from ssf_common.config import Section, build, dump
+from ssf_common.dataset.kitti import SequenceWriter
+from ssf_common.dataset.pairs import PointClass, ScanPair, make_pair, write_pair
 from ssf_common.errors import ConfigError, DataError
-
-Sampling = Literal["random", "fps"]
-
+from ssf_common.geometry.sampling import Sampling, sample_indices
 
 class PairProtocol(Section):
     """How a pair is cut from two full scans: range crop, ground removal, then N points per scan."""
 
     points: int = Field(8192, ge=1, description="points per scan")
-    sampling: Sampling = "random"
+    sampling: Sampling = Field(Sampling.RANDOM, description="random | voxel | fps")
     max_range: float | None = Field(35.0, gt=0.0, description="points farther from the sensor are dropped (m); null keeps all")
-    drop_ground: bool = Field(True, description="drop points on the ground (ground-truth class) before sampling")
+    remove_ground: bool = Field(True, description="drop points on the ground (ground-truth class) before sampling")
 
 
 PROTOCOLS = {
     # the scene-flow benchmarks' KITTI protocol (FlowNet3D onwards): ground removed, 35 m, 8192 points
     "paper": PairProtocol(),
     # whole scans, ground and all, as the node sees them
-    "raw": PairProtocol(max_range=None, drop_ground=False),
+    "raw": PairProtocol(max_range=None, remove_ground=False),
 }
+
+DEFAULT_WARMUP_S = 2.0  # the traffic starts from rest: before this, few agents move
 
 
 def pair_protocol(name: str = "paper", **overrides) -> PairProtocol:
@@ -47,58 +44,24 @@ def pair_protocol(name: str = "paper", **overrides) -> PairProtocol:
     return build(PairProtocol, {**PROTOCOLS[name].model_dump(), **changes})
 
 
-PAIR_KEYS = ("pc1", "pc2", "flow", "instance1", "class1", "dynamic1", "pose1", "pose2")
+def warmup_frames(scenario: Scenario, warmup_s: float) -> int:
+    """Frames simulated before the first pair, so that the traffic is moving."""
+    if not np.isfinite(warmup_s) or warmup_s < 0:
+        raise ConfigError(f"warm-up must be a finite number of seconds >= 0, got {warmup_s}")
+    return int(round(warmup_s / scenario.episode.dt))
 
 
-@dataclass(frozen=True)
-class FramePair:
-    """Consecutive scans, each in its own sensor frame, and the exact flow of pc1 (pc1 + flow lies on pc2)."""
-
-    pc1: np.ndarray  # (N, 3) float32
-    pc2: np.ndarray  # (M, 3) float32
-    flow: np.ndarray  # (N, 3) float32
-    instance1: np.ndarray  # (N,) int32, agent id or 0
-    class1: np.ndarray  # (N,) uint8 PointClass
-    dynamic1: np.ndarray  # (N,) bool
-    pose1: np.ndarray  # (4, 4) world <- sensor at t
-    pose2: np.ndarray  # (4, 4) world <- sensor at t+1
-
-
-def sample_indices(points: np.ndarray, count: int, rng: np.random.Generator, sampling: Sampling) -> np.ndarray:
-    """count point indices: random without replacement (with, if too few points) or farthest-point sampling."""
-    if count <= 0:
-        raise DataError(f"points must be positive, got {count}")
-    if len(points) == 0:
-        raise DataError("cannot sample from an empty scan")
-    if len(points) <= count:
-        extra = rng.choice(len(points), count - len(points), replace=True)
-        return np.concatenate([rng.permutation(len(points)), extra])
-    if sampling == "random":
-        return np.sort(rng.choice(len(points), count, replace=False))
-    return farthest_point_sampling(points, count, int(rng.integers(len(points))))
-
-
-def farthest_point_sampling(points: np.ndarray, count: int, start: int) -> np.ndarray:
-    """Indices of count points picked greedily farthest from those already picked."""
-    xyz = points.astype(np.float32)
-    chosen = np.empty(count, np.int64)
-    chosen[0] = start
-    nearest = np.sum((xyz - xyz[start]) ** 2, axis=1)
-    for k in range(1, count):
-        chosen[k] = int(np.argmax(nearest))
-        np.minimum(nearest, np.sum((xyz - xyz[chosen[k]]) ** 2, axis=1), out=nearest)
-    return chosen
-
-
-def simulate(scenario: Scenario, seed: int | None, frames: int) -> Iterator[Frame]:
-    """frames + 1 consecutive frames of the scenario driven by the built-in route follower."""
+def simulate(scenario: Scenario, seed: int | None, frames: int, skip: int = 0) -> Iterator[Frame]:
+    """frames + 1 consecutive frames of the scenario driven by the built-in route follower, after `skip` frames
+    that are simulated but not yielded."""
     sim = Simulator(scenario, seed)
     frame = sim.reset()
     driver = sim.follower()
-    yield frame
-    for _ in range(frames):
-        frame = sim.step(driver.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome))
-        yield frame
+    for index in range(skip + frames + 1):
+        if index >= skip:
+            yield frame
+        if index < skip + frames:
+            frame = sim.step(driver.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome))
 
 
 def kept_points(frame: Frame, protocol: PairProtocol) -> np.ndarray:
@@ -106,27 +69,31 @@ def kept_points(frame: Frame, protocol: PairProtocol) -> np.ndarray:
     keep = np.ones(len(frame.scan.points), dtype=bool)
     if protocol.max_range is not None:
         keep &= np.linalg.norm(frame.scan.points[:, :2], axis=1) <= protocol.max_range
-    if protocol.drop_ground:
+    if protocol.remove_ground:
         keep &= frame.scan.label != PointClass.GROUND
     return np.flatnonzero(keep)
 
 
-def _pairs_of(
-    frames: Iterator[Frame], seed: int, protocol: PairProtocol
-) -> Iterator[tuple[FramePair, Frame, Frame]]:
+def cut_points(frame: Frame, protocol: PairProtocol, rng: np.random.Generator) -> np.ndarray:
+    """Indices of the protocol's N points of a frame's scan (repeated when the scan has fewer)."""
+    kept = kept_points(frame, protocol)
+    if kept.size == 0:
+        raise DataError(f"frame {frame.index}: no point left after the protocol's range and ground cut")
+    return kept[sample_indices(frame.scan.points[kept], protocol.points, rng, protocol.sampling, pad=True)]
+
+
+def _pairs_of(frames: Iterator[Frame], seed: int, protocol: PairProtocol) -> Iterator[tuple[ScanPair, Frame, Frame]]:
     previous = next(frames)
     for frame in frames:
         rng = np.random.default_rng([seed, 4, previous.index])
-        kept1, kept2 = kept_points(previous, protocol), kept_points(frame, protocol)
-        first = kept1[sample_indices(previous.scan.points[kept1], protocol.points, rng, protocol.sampling)]
-        second = kept2[sample_indices(frame.scan.points[kept2], protocol.points, rng, protocol.sampling)]
-        pair = FramePair(
+        first, second = cut_points(previous, protocol, rng), cut_points(frame, protocol, rng)
+        pair = make_pair(
             pc1=previous.scan.points[first],
             pc2=frame.scan.points[second],
             flow=frame.flow.flow[first],
+            dynamic1=frame.flow.dynamic[first],
             instance1=previous.scan.instance[first],
             class1=previous.scan.label[first],
-            dynamic1=frame.flow.dynamic[first],
             pose1=previous.pose.copy(),
             pose2=frame.pose.copy(),
         )
@@ -139,12 +106,14 @@ def _scenario(scenario: Scenario | str) -> Scenario:
 
 
 def generate_pairs(
-    scenario: Scenario | str, seed: int | None = None, frames: int = 10, protocol: PairProtocol = PROTOCOLS["paper"]
-) -> Iterator[FramePair]:
-    """frames consecutive pairs of the scenario (seeded, deterministic), cut from the scans by the protocol."""
+    scenario: Scenario | str, seed: int | None = None, frames: int = 10, protocol: PairProtocol = PROTOCOLS["paper"],
+    warmup_s: float = DEFAULT_WARMUP_S,
+) -> Iterator[ScanPair]:
+    """frames consecutive pairs of the scenario (seeded, deterministic) after warmup_s seconds, cut by the protocol."""
     scenario = _scenario(scenario)
     seed = scenario.seed if seed is None else seed
-    for pair, _, _ in _pairs_of(simulate(scenario, seed, frames), seed, protocol):
+    skip = warmup_frames(scenario, warmup_s)
+    for pair, _, _ in _pairs_of(simulate(scenario, seed, frames, skip), seed, protocol):
         yield pair
 
 
@@ -155,35 +124,33 @@ def export(
     frames: int = 10,
     protocol: PairProtocol = PROTOCOLS["paper"],
     progress=None,
+    warmup_s: float = DEFAULT_WARMUP_S,
 ) -> Path:
     """Write pairs/NNNNNN.npz, sequence/velodyne/NNNNNN.bin + sequence/poses.txt and dataset.json under out."""
     scenario = _scenario(scenario)
     seed = scenario.seed if seed is None else seed
     out = Path(out)
-    pair_dir, velodyne = out / "pairs", out / "sequence" / "velodyne"
+    pair_dir = out / "pairs"
     try:
         pair_dir.mkdir(parents=True, exist_ok=True)
-        velodyne.mkdir(parents=True, exist_ok=True)
     except OSError as err:
         raise DataError(f"{out}: cannot create the output folders ({err.strerror})") from None
-    poses = []
-    for number, (pair, previous, frame) in enumerate(
-        _pairs_of(simulate(scenario, seed, frames), seed, protocol)
-    ):
-        np.savez(pair_dir / f"{number:06d}.npz", **{key: getattr(pair, key) for key in PAIR_KEYS})
+    sequence = SequenceWriter(out / "sequence")
+    skip = warmup_frames(scenario, warmup_s)
+    for number, (pair, previous, frame) in enumerate(_pairs_of(simulate(scenario, seed, frames, skip), seed, protocol)):
+        write_pair(pair_dir / f"{number:06d}.npz", pair)
         if number == 0:
-            write_bin(velodyne / f"{previous.index:06d}.bin", previous.scan.points, previous.scan.intensity)
-            poses.append(previous.pose)
-        write_bin(velodyne / f"{frame.index:06d}.bin", frame.scan.points, frame.scan.intensity)
-        poses.append(frame.pose)
+            sequence.add(previous.index, previous.scan.points, previous.scan.intensity, previous.pose)
+        sequence.add(frame.index, frame.scan.points, frame.scan.intensity, frame.pose)
         if progress is not None:
             progress(number + 1, frames)
-    origin = poses[0]
-    write_poses(out / "sequence" / "poses.txt", np.linalg.inv(origin) @ np.stack(poses))
+    origin = sequence.close()
     description = {
         "scenario": scenario.model_dump(mode="json"),
         "seed": seed,
         "pairs": frames,
+        "warmup_s": warmup_s,
+        "first_frame": skip,
         "protocol": protocol.model_dump(mode="json"),
         "dt": scenario.episode.dt,
         "sensor": scenario.lidar.model_dump(mode="json"),
@@ -206,60 +173,3 @@ def export(
     (out / "dataset.json").write_text(json.dumps(description, indent=2))
     (out / "scenario.yaml").write_text(dump(scenario))
     return out
-
-
-def load_pair(path: str | Path) -> FramePair:
-    """Read one exported .npz pair, checking keys, shapes and types."""
-    path = Path(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            missing = [key for key in PAIR_KEYS if key not in data.files]
-            if missing:
-                raise DataError(f"{path}: missing keys {', '.join(missing)}")
-            arrays = {key: data[key] for key in PAIR_KEYS}
-    except (OSError, ValueError) as err:
-        raise DataError(f"{path}: not a readable .npz pair ({err})") from None
-    count = len(arrays["pc1"])
-    for key, shape in (
-        ("pc1", (count, 3)),
-        ("pc2", (None, 3)),
-        ("flow", (count, 3)),
-        ("instance1", (count,)),
-        ("class1", (count,)),
-        ("dynamic1", (count,)),
-        ("pose1", (4, 4)),
-        ("pose2", (4, 4)),
-    ):
-        actual = arrays[key].shape
-        if len(actual) != len(shape) or any(want is not None and want != got for want, got in zip(shape, actual)):
-            raise DataError(
-                f"{path}: '{key}' has shape {actual}, expected {tuple('N' if s is None else s for s in shape)}"
-            )
-    for key in ("pc1", "pc2", "flow", "pose1", "pose2"):
-        if not np.isfinite(arrays[key]).all():
-            raise DataError(f"{path}: '{key}' holds NaN or Inf")
-    return FramePair(
-        pc1=arrays["pc1"].astype(np.float32),
-        pc2=arrays["pc2"].astype(np.float32),
-        flow=arrays["flow"].astype(np.float32),
-        instance1=arrays["instance1"].astype(np.int32),
-        class1=arrays["class1"].astype(np.uint8),
-        dynamic1=arrays["dynamic1"].astype(bool),
-        pose1=arrays["pose1"].astype(np.float64),
-        pose2=arrays["pose2"].astype(np.float64),
-    )
-
-
-def load_pairs(folder: str | Path) -> Iterator[FramePair]:
-    """Every pair of an exported folder (the folder itself or its pairs/ subfolder), in order."""
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise DataError(f"{folder}: no such folder")
-    files = sorted(folder.glob("*.npz")) or sorted((folder / "pairs").glob("*.npz"))
-    if not files:
-        raise DataError(f"{folder}: no .npz pairs (expected an `ssf dataset export` folder)")
-    for path in files:
-        yield load_pair(path)
-
-
-assert tuple(field.name for field in fields(FramePair)) == PAIR_KEYS

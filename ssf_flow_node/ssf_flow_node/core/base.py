@@ -7,7 +7,7 @@ from typing import NamedTuple, Protocol
 
 import numpy as np
 
-from ssf_flow_node.core.registration import rigid_flow
+from ssf_common.geometry.se3 import rigid_flow
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask, check_scan, downsample, propagate_motion
 
 

@@ -11,7 +11,8 @@ from ssf_common.config import Section
 from ssf_common.errors import ConfigError
 from ssf_flow_node.core.base import FlowEstimator, FlowResult, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig
-from ssf_flow_node.core.registration import RegistrationConfig, register, rigid_flow
+from ssf_common.geometry.se3 import rigid_flow
+from ssf_flow_node.core.registration import RegistrationConfig, register
 from ssf_flow_node.core.rigid import RigidConfig, RigidFlowEstimator
 
 ESTIMATORS = ("zero", "ego", "rigid", "asf")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from enum import Enum
 from typing import NamedTuple
 
 import numpy as np
@@ -11,14 +10,9 @@ from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
 from ssf_common.errors import DataError
-
-
-class Sampling(str, Enum):
-    """How a scan is reduced to N points."""
-
-    RANDOM = "random"
-    VOXEL = "voxel"
-    FPS = "fps"
+from ssf_common.geometry.ground import ground_mask
+from ssf_common.geometry.neighbours import propagate
+from ssf_common.geometry.sampling import Sampling, sample_indices
 
 
 class PreprocessConfig(Section):
@@ -73,75 +67,10 @@ def check_mask(mask: np.ndarray | None, count: int) -> np.ndarray | None:
     return values
 
 
-def ground_mask(points: np.ndarray, cell: float = 2.0, height: float = 0.3) -> np.ndarray:
-    """Flag points within `height` of the local ground."""
-    return height_above_ground(points, cell) < height
-
-
-DENSE_GRID_CELLS = 1 << 22  # beyond this many grid cells (scattered outliers) the sparse path is used
-
-
-def height_above_ground(points: np.ndarray, cell: float = 2.0) -> np.ndarray:
-    """Height of each point above the lowest point of its grid cell (or its 8 neighbours, slope-tolerant)."""
-    keys = np.floor(points[:, :2] / cell).astype(np.int64)
-    keys -= keys.min(axis=0) - 1  # a border of empty cells around the scan
-    rows, cols = (int(n) + 2 for n in keys.max(axis=0))
-    if rows * cols > DENSE_GRID_CELLS:
-        return sparse_height_above_ground(points, keys, cols, cell)
-    cells = keys[:, 0] * cols + keys[:, 1]
-    lowest = np.full(rows * cols, np.inf)
-    np.minimum.at(lowest, cells, points[:, 2])
-    grid = lowest.reshape(rows, cols)
-    neighbour_lowest = np.full_like(grid, np.inf)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            if dx or dy:
-                np.minimum(neighbour_lowest[1:-1, 1:-1], grid[1 + dx:rows - 1 + dx, 1 + dy:cols - 1 + dy],
-                           out=neighbour_lowest[1:-1, 1:-1])
-    floor = np.minimum(grid, neighbour_lowest + 0.15 * cell).ravel()  # a cell without visible ground borrows its neighbours'
-    return points[:, 2] - floor[cells]
-
-
-def sparse_height_above_ground(points: np.ndarray, keys: np.ndarray, cols: int, cell: float) -> np.ndarray:
-    """height_above_ground over the occupied cells only, for scans spread over a huge area."""
-    cells = keys[:, 0] * cols + keys[:, 1]
-    unique, inverse = np.unique(cells, return_inverse=True)
-    lowest = np.full(unique.shape[0], np.inf, dtype=np.float64)
-    np.minimum.at(lowest, inverse, points[:, 2])
-    neighbour_lowest = np.full_like(lowest, np.inf)
-    for dx in (-1, 0, 1):
-        for dy in (-1, 0, 1):
-            if dx or dy:
-                shifted = np.minimum(np.searchsorted(unique, unique + dx * cols + dy), unique.shape[0] - 1)
-                found = unique[shifted] == unique + dx * cols + dy
-                neighbour_lowest[found] = np.minimum(neighbour_lowest[found], lowest[shifted[found]])
-    floor = np.minimum(lowest, neighbour_lowest + 0.15 * cell)
-    return points[:, 2] - floor[inverse]
-
-
 def crop(points: np.ndarray, config: PreprocessConfig) -> np.ndarray:
     """Indices of the points inside the configured range annulus."""
     distance = np.linalg.norm(points[:, :2], axis=1)
     return np.flatnonzero((distance >= config.min_range) & (distance <= config.max_range))
-
-
-def farthest_point_indices(points: np.ndarray, count: int, start: int = 0) -> np.ndarray:
-    """Farthest point sampling (greedy); O(N * count)."""
-    chosen = np.empty(count, dtype=np.int64)
-    distance = np.full(points.shape[0], np.inf, dtype=np.float32)
-    current = start
-    for i in range(count):
-        chosen[i] = current
-        distance = np.minimum(distance, ((points - points[current]) ** 2).sum(axis=1))
-        current = int(distance.argmax())
-    return chosen
-
-
-def voxel_indices(points: np.ndarray, voxel: float) -> np.ndarray:
-    """One point (the first) per occupied voxel."""
-    keys = np.floor(points / voxel).astype(np.int64)
-    _, first = np.unique(keys, axis=0, return_index=True)
-    return np.sort(first)
 
 
 def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Generator) -> Sample:
@@ -151,29 +80,8 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
         candidates = candidates[~ground_mask(points[candidates], config.ground_cell, config.ground_height)]
     if candidates.size == 0:
         raise DataError(f"scan has no points between {config.min_range} m and {config.max_range} m")
-    if config.sampling is Sampling.VOXEL:
-        candidates = candidates[voxel_indices(points[candidates], config.voxel_size)]
-    if candidates.size > config.points:
-        if config.sampling is Sampling.FPS:
-            pick = farthest_point_indices(points[candidates], config.points, int(rng.integers(candidates.size)))
-        else:
-            pick = rng.choice(candidates.size, config.points, replace=False)
-        candidates = np.sort(candidates[pick])
+    candidates = candidates[sample_indices(points[candidates], config.points, rng, config.sampling, config.voxel_size)]
     return Sample(candidates.astype(np.int64), points[candidates])
-
-
-def propagate(source: np.ndarray, values: np.ndarray, targets: np.ndarray, k: int = 3,
-              radius: float = np.inf) -> np.ndarray:
-    """Carry per-point values from source points to target points by inverse-distance kNN (KD-tree); targets
-    with no source within `radius` get zeros."""
-    k = min(k, source.shape[0])
-    distance, index = cKDTree(source).query(targets, k=k, distance_upper_bound=radius)
-    distance, index = distance.reshape(len(targets), k), index.reshape(len(targets), k)
-    found = np.isfinite(distance)
-    weight = np.where(found, 1.0 / np.maximum(distance, 1e-6), 0.0)
-    weight /= np.maximum(weight.sum(axis=1, keepdims=True), 1e-12)
-    padded = np.concatenate([values, np.zeros((1, values.shape[1]), values.dtype)])  # index == len(source): none
-    return np.einsum("nk,nkc->nc", weight, padded[index]).astype(np.float32)
 
 
 def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k: int = 3,

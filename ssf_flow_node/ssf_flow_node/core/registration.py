@@ -32,16 +32,6 @@ def to_cloud(points: np.ndarray):
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
 
 
-def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply a 4x4 rigid transform to (N, 3) points."""
-    return (points @ transform[:3, :3].T + transform[:3, 3]).astype(np.float32)
-
-
-def rigid_flow(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Flow of points that move with a rigid transform: T p - p."""
-    return transform_points(transform, points) - points
-
-
 class ScanMatcher:
     """Point-to-plane ICP against one target scan (its normals computed once)."""
 

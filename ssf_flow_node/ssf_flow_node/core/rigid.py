@@ -6,18 +6,17 @@ from typing import NamedTuple
 
 import numpy as np
 from pydantic import Field
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
+from ssf_common.geometry.clustering import voxel_components
+from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
+from ssf_common.geometry.ground import height_above_ground
+from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
+from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, finish, prepare
-from ssf_flow_node.core.preprocess import PreprocessConfig, height_above_ground
-from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, transform_points
-
-NEIGHBOUR_OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
-                              if (dx, dy, dz) > (0, 0, 0)], dtype=np.int64)
-
+from ssf_flow_node.core.preprocess import PreprocessConfig
+from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
 
 class RigidConfig(Section):
     """Clustering and per-cluster registration of the learning-free estimator."""
@@ -104,34 +103,16 @@ class RigidFlowEstimator:
 
 def joint_clusters(points1: np.ndarray, points2: np.ndarray, voxel: float) -> Clusters:
     """Connected components of the occupied voxels of both (ego-compensated) scans together."""
-    points = np.concatenate([points1, points2])
-    if points.shape[0] == 0:
-        return Clusters(np.full(0, -1), np.full(0, -1), 0)
-    keys = np.floor(points / voxel).astype(np.int64)
-    keys -= keys.min(axis=0) - 1
-    span = keys.max(axis=0) + 2
-    codes = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
-    voxels, inverse = np.unique(codes, return_inverse=True)
-    strides = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
-    rows, cols = [], []
-    for offset in NEIGHBOUR_OFFSETS @ strides:
-        position = np.minimum(np.searchsorted(voxels, voxels + offset), voxels.size - 1)
-        found = voxels[position] == voxels + offset
-        rows.append(np.flatnonzero(found))
-        cols.append(position[found])
-    rows, cols = np.concatenate(rows), np.concatenate(cols)
-    graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(voxels.size, voxels.size))
-    count, component = connected_components(graph, directed=False)
-    labels = component[inverse]
-    return Clusters(labels[: points1.shape[0]], labels[points1.shape[0]:], int(count))
+    labels, count = voxel_components(np.concatenate([points1, points2]), voxel)
+    return Clusters(labels[: points1.shape[0]], labels[points1.shape[0]:], count)
 
 
 def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, active: np.ndarray,
                          config: RigidConfig, tree: cKDTree, rng: np.random.Generator) -> np.ndarray:
     """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram."""
     count = clusters.count
-    picks1 = pick_per_cluster(clusters.labels1, active, config.histogram_points, rng)
-    picks2 = pick_per_cluster(clusters.labels2, active, config.histogram_points, rng)
+    picks1 = pick_per_label(clusters.labels1, active, config.histogram_points, rng)
+    picks2 = pick_per_label(clusters.labels2, active, config.histogram_points, rng)
     candidates = [np.zeros((count, 3)), centroid_shift(points1, points2, clusters, count)]
     if picks1.size and picks2.size:
         candidates += histogram_peaks(points1, points2, clusters, picks1, picks2, config)
@@ -148,10 +129,7 @@ def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clu
 def centroid_shift(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, count: int) -> np.ndarray:
     """Per cluster, the horizontal shift between its centroids in the two scans."""
     shift = np.zeros((count, 3))
-    for axis in (0, 1):
-        mean1 = np.bincount(clusters.labels1, points1[:, axis], count) / np.maximum(np.bincount(clusters.labels1, minlength=count), 1)
-        mean2 = np.bincount(clusters.labels2, points2[:, axis], count) / np.maximum(np.bincount(clusters.labels2, minlength=count), 1)
-        shift[:, axis] = mean2 - mean1
+    shift[:, :2] = label_means(points2[:, :2], clusters.labels2, count) - label_means(points1[:, :2], clusters.labels1, count)
     return shift
 
 
@@ -187,51 +165,6 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     return peaks
 
 
-def pick_per_cluster(labels: np.ndarray, active: np.ndarray, per_cluster: int, rng: np.random.Generator) -> np.ndarray:
-    """Up to `per_cluster` random point indices from each active cluster."""
-    candidates = np.flatnonzero((labels >= 0) & active[np.maximum(labels, 0)])
-    shuffled = candidates[rng.permutation(candidates.size)]
-    order = np.argsort(labels[shuffled], kind="stable")
-    ordered = shuffled[order]
-    sorted_labels = labels[ordered]
-    rank = np.arange(ordered.size) - np.searchsorted(sorted_labels, sorted_labels, side="left")
-    return ordered[rank < per_cluster]
-
-
-def ragged_arange(lengths: np.ndarray) -> np.ndarray:
-    """Concatenation of arange(n) for each n in lengths."""
-    total = int(lengths.sum())
-    if total == 0:
-        return np.zeros(0, dtype=np.int64)
-    offsets = np.repeat(np.cumsum(lengths) - lengths, lengths)
-    return np.arange(total) - offsets
-
-
-def planar_kabsch(source: np.ndarray, target: np.ndarray, labels: np.ndarray, count: int,
-                  max_yaw: float = np.pi) -> tuple[np.ndarray, np.ndarray]:
-    """Per label, the yaw (at most max_yaw) and translation that best map source onto target (rotation about z)."""
-    n = np.bincount(labels, minlength=count).astype(np.float64)
-    safe = np.maximum(n, 1.0)[:, None]
-    mean_s = np.stack([np.bincount(labels, source[:, i], count) for i in range(3)], axis=1) / safe
-    mean_t = np.stack([np.bincount(labels, target[:, i], count) for i in range(3)], axis=1) / safe
-    s = source - mean_s[labels]
-    t = target - mean_t[labels]
-    cos_term = np.bincount(labels, s[:, 0] * t[:, 0] + s[:, 1] * t[:, 1], count)
-    sin_term = np.bincount(labels, s[:, 0] * t[:, 1] - s[:, 1] * t[:, 0], count)
-    yaw = np.clip(np.arctan2(sin_term, cos_term), -max_yaw, max_yaw)
-    c, si = np.cos(yaw), np.sin(yaw)
-    rotated = np.stack([c * mean_s[:, 0] - si * mean_s[:, 1], si * mean_s[:, 0] + c * mean_s[:, 1], mean_s[:, 2]], axis=1)
-    return yaw, mean_t - rotated
-
-
-def rotate_translate(points: np.ndarray, yaw: np.ndarray, translation: np.ndarray) -> np.ndarray:
-    """Apply per-point yaw (about z) and translation."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([c * points[:, 0] - s * points[:, 1] + translation[:, 0],
-                     s * points[:, 0] + c * points[:, 1] + translation[:, 1],
-                     points[:, 2] + translation[:, 2]], axis=1)
-
-
 class Fit(NamedTuple):
     """How well scan t+1 explains each cluster under one motion hypothesis."""
 
@@ -253,37 +186,6 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
                np.bincount(labels, residual > config.inlier_gate, count) / sizes)
 
 
-def plane_step(moved: np.ndarray, target: np.ndarray, normals: np.ndarray, labels: np.ndarray, yaw: np.ndarray,
-               translation: np.ndarray, count: int, config: RigidConfig) -> tuple[np.ndarray, np.ndarray]:
-    """One Gauss-Newton step per cluster on point-to-plane (plus a little point-to-point) residuals: yaw about the
-    cluster centre and a translation."""
-    sizes = np.maximum(np.bincount(labels, minlength=count), 1).astype(np.float64)
-    centre = np.stack([np.bincount(labels, moved[:, i], count) for i in range(3)], axis=1) / sizes[:, None]
-    offset = moved - centre[labels]
-    lever = np.column_stack([-offset[:, 1], offset[:, 0], np.zeros(len(offset))])
-    error = moved - target
-    plane_row = np.column_stack([normals, (normals * lever).sum(axis=1)])  # (n, 4)
-    plane_error = (normals * error).sum(axis=1)
-    weight = config.point_weight
-    hessian = np.einsum("ni,nj->nij", plane_row, plane_row)
-    hessian[:, :3, :3] += weight * np.eye(3)
-    hessian[:, :3, 3] += weight * lever
-    hessian[:, 3, :3] += weight * lever
-    hessian[:, 3, 3] += weight * (lever ** 2).sum(axis=1)
-    gradient = plane_row * plane_error[:, None]
-    gradient[:, :3] += weight * error
-    gradient[:, 3] += weight * (lever * error).sum(axis=1)
-    system = np.stack([np.bincount(labels, hessian[:, i, j], count) for i in range(4) for j in range(4)], axis=1)
-    system = system.reshape(count, 4, 4) + 1e-3 * np.eye(4)
-    rhs = np.stack([np.bincount(labels, gradient[:, i], count) for i in range(4)], axis=1)
-    step = -np.linalg.solve(system, rhs[:, :, None])[:, :, 0]
-    turn = np.clip(yaw + step[:, 3], -config.max_yaw, config.max_yaw) - yaw
-    c, s = np.cos(turn), np.sin(turn)
-    relative = translation - centre
-    rotated = np.column_stack([c * relative[:, 0] - s * relative[:, 1], s * relative[:, 0] + c * relative[:, 1], relative[:, 2]])
-    return yaw + turn, rotated + centre + step[:, :3]
-
-
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
                     mask: np.ndarray | None, normals2: np.ndarray | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better."""
@@ -293,7 +195,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         return ClusterMotions(yaw, translation, np.zeros(count, dtype=bool))
     sizes1 = np.bincount(clusters.labels1, minlength=count)
     sizes2 = np.bincount(clusters.labels2, minlength=count)
-    active = (np.minimum(sizes1, sizes2) >= config.min_cluster_points) & (extents(points1, clusters.labels1, count) <= config.max_extent)
+    active = (np.minimum(sizes1, sizes2) >= config.min_cluster_points) & (label_extents(points1, clusters.labels1, count) <= config.max_extent)
     belief = None
     if mask is not None:
         belief = np.bincount(clusters.labels1, mask, count) / np.maximum(sizes1, 1)
@@ -303,11 +205,11 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     translation = initial_translations(points1, points2, clusters, active, config, tree, rng)
     believed = np.zeros(count, dtype=bool) if belief is None else belief > config.mask_threshold
     active &= believed | (translation != 0.0).any(axis=1)  # where standing still explains a cluster best, it does
-    members = pick_per_cluster(clusters.labels1, active, config.icp_points, rng)
+    members = pick_per_label(clusters.labels1, active, config.icp_points, rng)
     source, labels = points1[members], clusters.labels1[members]
     gates = np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations)
     for gate in gates:
-        moved = rotate_translate(source, yaw[labels], translation[labels])
+        moved = yaw_translate(source, yaw[labels], translation[labels])
         gap, index = tree.query(moved, distance_upper_bound=gate)
         good = np.isfinite(gap)
         good[good] = clusters.labels2[index[good]] == labels[good]
@@ -315,10 +217,11 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         if normals2 is None:
             new_yaw, new_translation = planar_kabsch(source[good], points2[index[good]], labels[good], count, config.max_yaw)
         else:
-            new_yaw, new_translation = plane_step(moved[good], points2[index[good]], normals2[index[good]], labels[good],
-                                                  yaw, translation, count, config)
+            new_yaw, new_translation = planar_plane_step(moved[good], points2[index[good]], normals2[index[good]],
+                                                         labels[good], yaw, translation, count, config.point_weight,
+                                                         config.max_yaw)
         yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
-    moved = rotate_translate(source, yaw[labels], translation[labels])
+    moved = yaw_translate(source, yaw[labels], translation[labels])
     fit_moving = fit_quality(moved, labels, tree, clusters.labels2, config, count)
     fit_static = fit_quality(source, labels, tree, clusters.labels2, config, count)
     shift = np.stack([np.bincount(labels, (moved - source)[:, i], count) for i in range(3)], axis=1)
@@ -329,17 +232,6 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     moving |= active & (displacement > config.min_motion) & believed
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving)
-
-
-def extents(points: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
-    """Per cluster, the larger side (m) of its horizontal bounding box."""
-    sides = np.zeros(count)
-    for axis in (0, 1):  # one axis at a time: ufunc.at is ten times faster on 1-D values
-        low, high = np.full(count, np.inf), np.full(count, -np.inf)
-        np.minimum.at(low, labels, points[:, axis])
-        np.maximum.at(high, labels, points[:, axis])
-        sides = np.maximum(sides, np.where(np.isfinite(low), high - low, 0.0))
-    return sides
 
 
 def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, moving: np.ndarray,
@@ -359,5 +251,5 @@ def apply_motions(points: np.ndarray, labels: np.ndarray, motions: ClusterMotion
     """Move each clustered point with its cluster's motion."""
     moved = points.copy()
     on = labels >= 0
-    moved[on] = rotate_translate(points[on], motions.yaw[labels[on]], motions.translation[labels[on]])
+    moved[on] = yaw_translate(points[on], motions.yaw[labels[on]], motions.translation[labels[on]])
     return moved.astype(np.float32)

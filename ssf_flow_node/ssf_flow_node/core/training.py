@@ -12,13 +12,15 @@ import torch
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.dataset.masks import noisy_mask
+from ssf_common.dataset.pairs import ScanPair, read_pair
 from ssf_common.errors import DataError
+from ssf_common.geometry.se3 import transform_points, yaw_matrix
 from ssf_flow_node.core.asf import checkpoint
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import AsfConfig, AsfNet, FlowPyramid
 from ssf_flow_node.core.asf.ops import gather, knn
-from ssf_flow_node.core.data import FlowPair, noisy_mask, read_pair
-from ssf_flow_node.core.registration import RegistrationConfig, register, transform_points
+from ssf_flow_node.core.registration import RegistrationConfig, register
 
 
 class TrainMode(str, Enum):
@@ -76,7 +78,7 @@ class TrainResult(NamedTuple):
     checkpoint: Path
 
 
-def training_mask(pair: FlowPair, config: TrainConfig, rng: np.random.Generator) -> np.ndarray | None:
+def training_mask(pair: ScanPair, config: TrainConfig, rng: np.random.Generator) -> np.ndarray | None:
     """The mask a sample is trained with: none, an exported segmentation, or noisy ground truth."""
     if rng.random() < config.mask_absent:
         return None
@@ -85,14 +87,7 @@ def training_mask(pair: FlowPair, config: TrainConfig, rng: np.random.Generator)
     return noisy_mask(pair, rng, config.mask_flip, config.mask_drop)
 
 
-def yaw_matrix(angle: float) -> np.ndarray:
-    """A 4x4 rotation about z."""
-    matrix = np.eye(4)
-    matrix[:2, :2] = [[np.cos(angle), -np.sin(angle)], [np.sin(angle), np.cos(angle)]]
-    return matrix
-
-
-def make_sample(pair: FlowPair, ego: np.ndarray, config: TrainConfig, rng: np.random.Generator):
+def make_sample(pair: ScanPair, ego: np.ndarray, config: TrainConfig, rng: np.random.Generator):
     """Resample, rotate (augmentation), ego-compensate with noise, and build the mask channels of one pair."""
     pick1 = rng.choice(pair.pc1.shape[0], config.points, replace=pair.pc1.shape[0] < config.points)
     pick2 = rng.choice(pair.pc2.shape[0], config.points, replace=pair.pc2.shape[0] < config.points)
@@ -177,7 +172,7 @@ class Trainer:
         trainer.rng = np.random.default_rng([config.seed, trainer.step])
         return trainer
 
-    def ego_of(self, path: Path, pair: FlowPair) -> np.ndarray:
+    def ego_of(self, path: Path, pair: ScanPair) -> np.ndarray:
         """The pair's ego motion: from its poses when it has them, else by registration (cached)."""
         if not np.allclose(pair.ego, np.eye(4)):
             return pair.ego

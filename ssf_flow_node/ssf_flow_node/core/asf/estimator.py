@@ -12,7 +12,8 @@ from ssf_flow_node.core.asf.checkpoint import load, shipped_weights
 from ssf_flow_node.core.asf.network import AsfNet, MaskStrategy
 from ssf_flow_node.core.base import FlowResult, finish, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig
-from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, transform_points
+from ssf_common.geometry.se3 import transform_points
+from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
 
 
 def mask_channels(mask: np.ndarray | None, count: int) -> np.ndarray:

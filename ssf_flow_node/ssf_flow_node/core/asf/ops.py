@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
+
+from ssf_common.geometry import neighbours
+from ssf_common.geometry.sampling import farthest_point_indices
 
 CHUNK = 1024
 
@@ -19,11 +21,8 @@ def knn(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
 
 def knn_kdtree(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
     """kNN by a KD-tree per batch element (CPU)."""
-    out = np.empty((query.shape[0], query.shape[1], k), dtype=np.int64)
-    for b in range(query.shape[0]):
-        _, index = cKDTree(reference[b].detach().numpy()).query(query[b].detach().numpy(), k=k)
-        out[b] = index.reshape(query.shape[1], k)
-    return torch.from_numpy(out)
+    return torch.from_numpy(np.stack([neighbours.knn(reference[b].detach().numpy(), query[b].detach().numpy(), k).index
+                                      for b in range(query.shape[0])]).astype(np.int64))
 
 
 @torch.no_grad()
@@ -41,18 +40,8 @@ def farthest_points(points: torch.Tensor, count: int) -> torch.Tensor:
     if count >= points.shape[1]:
         return torch.arange(points.shape[1], device=points.device).expand(points.shape[0], -1).clone()
     if points.device.type == "cpu":
-        return torch.from_numpy(np.stack([farthest_numpy(cloud.detach().numpy(), count) for cloud in points]))
+        return torch.from_numpy(np.stack([farthest_point_indices(cloud.detach().numpy(), count) for cloud in points]))
     return farthest_torch(points, count)
-
-
-def farthest_numpy(points: np.ndarray, count: int) -> np.ndarray:
-    """FPS on one cloud through Open3D's C++ implementation, mapped back to indices."""
-    import open3d as o3d
-
-    cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points.astype(np.float64)))
-    chosen = np.asarray(cloud.farthest_point_down_sample(count).points)
-    _, index = cKDTree(points).query(chosen, k=1)
-    return index.astype(np.int64)
 
 
 @torch.no_grad()

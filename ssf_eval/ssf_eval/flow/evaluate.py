@@ -8,9 +8,10 @@ from typing import Iterable, NamedTuple, Sequence
 
 import numpy as np
 
-from ssf_flow_node.core.base import FlowEstimator
-from ssf_flow_node.core.data import FlowPair, noisy_mask
-from ssf_flow_node.core.metrics import FlowScores, pool_scores, score_flow
+from ssf_common.dataset.masks import noisy_mask
+from ssf_common.dataset.pairs import ScanPair
+from ssf_eval.flow.metrics import FlowScores, pool_scores, score_flow
+from ssf_flow_node.core.base import FlowEstimator, FlowResult
 
 
 class MaskSource(str, Enum):
@@ -30,7 +31,7 @@ class EstimatorScores(NamedTuple):
     frames: int
 
 
-def mask_for(pair: FlowPair, source: MaskSource, rng: np.random.Generator) -> np.ndarray | None:
+def mask_for(pair: ScanPair, source: MaskSource, rng: np.random.Generator) -> np.ndarray | None:
     """The mask that every estimator gets for this pair."""
     if source is MaskSource.NONE:
         return None
@@ -39,23 +40,35 @@ def mask_for(pair: FlowPair, source: MaskSource, rng: np.random.Generator) -> np
     return noisy_mask(pair, rng)
 
 
-def evaluate(estimators: Sequence[FlowEstimator], pairs: Iterable[FlowPair], source: MaskSource,
-             seed: int = 0, progress=None) -> list[EstimatorScores]:
+class FlowEvaluation(NamedTuple):
+    """Scores of every estimator, and what each estimated on the last pair (for the picture)."""
+
+    results: list[EstimatorScores]
+    last_pair: ScanPair | None
+    last_flows: dict[str, FlowResult]
+
+
+def evaluate(estimators: Sequence[FlowEstimator], pairs: Iterable[ScanPair], source: MaskSource,
+             seed: int = 0, progress=None) -> FlowEvaluation:
     """Run every estimator on every pair; scores pooled over points, split into all/static/dynamic."""
     rng = np.random.default_rng(seed)
     frames: list[list[FlowScores]] = [[] for _ in estimators]
     times: list[list[float]] = [[] for _ in estimators]
+    last_pair, last_flows = None, {}
     for index, pair in enumerate(pairs):
         mask = mask_for(pair, source, rng)
+        last_pair, last_flows = pair, {}
         for slot, estimator in enumerate(estimators):
             started = time.perf_counter()
             result = estimator.estimate(pair.pc1, pair.pc2, mask)
             times[slot].append((time.perf_counter() - started) * 1e3)
             frames[slot].append(score_flow(result.flow, pair.flow, pair.dynamic1))
+            last_flows[estimator.name] = result
         if progress is not None:
             progress(index + 1)
-    return [EstimatorScores(estimator.name, pool_scores(scores), float(np.median(spent)) if spent else float("nan"), len(scores))
-            for estimator, scores, spent in zip(estimators, frames, times)]
+    results = [EstimatorScores(estimator.name, pool_scores(scores), float(np.median(spent)) if spent else float("nan"),
+                               len(scores)) for estimator, scores, spent in zip(estimators, frames, times)]
+    return FlowEvaluation(results, last_pair, last_flows)
 
 
 def format_table(results: Sequence[EstimatorScores]) -> str:

@@ -5,7 +5,7 @@ import math
 import numpy as np
 import pytest
 
-from ssf_flow_node.core.metrics import FlowMetrics, flow_metrics, pool_metrics, pool_scores, score_flow
+from ssf_eval.flow.metrics import FlowMetrics, flow_metrics, pool_metrics, pool_scores, score_flow
 
 
 def test_hand_computed_case():

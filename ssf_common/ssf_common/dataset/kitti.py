@@ -74,3 +74,30 @@ class KittiSequence:
     def __iter__(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         for index in range(len(self)):
             yield self.scan(index), self.poses[index]
+
+
+class SequenceWriter:
+    """Writes a KITTI odometry sequence: velodyne/NNNNNN.bin per scan, and on close poses.txt of every scan
+    relative to the first."""
+
+    def __init__(self, folder: str | Path):
+        self.folder = Path(folder)
+        self.velodyne = self.folder / "velodyne"
+        try:
+            self.velodyne.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise DataError(f"{self.folder}: cannot create the sequence folder ({err.strerror})") from None
+        self.poses: list[np.ndarray] = []
+
+    def add(self, index: int, points: np.ndarray, intensity: np.ndarray, pose: np.ndarray) -> None:
+        """Write scan `index` (sensor frame) taken at `pose` (world <- sensor)."""
+        write_bin(self.velodyne / f"{index:06d}.bin", points, intensity)
+        self.poses.append(np.asarray(pose, dtype=np.float64))
+
+    def close(self) -> np.ndarray:
+        """Write poses.txt; return the first scan's world pose (the sequence's origin)."""
+        if not self.poses:
+            raise DataError(f"{self.folder}: no scans were written")
+        origin = self.poses[0]
+        write_poses(self.folder / "poses.txt", np.linalg.inv(origin) @ np.stack(self.poses))
+        return origin

@@ -7,15 +7,15 @@ from typing import Mapping
 
 import numpy as np
 
+from ssf_common.dataset.pairs import ScanPair
 from ssf_common.errors import DataError
+from ssf_common.geometry.se3 import rigid_flow
 from ssf_flow_node.core.base import FlowResult
-from ssf_flow_node.core.data import FlowPair
-from ssf_flow_node.core.registration import rigid_flow
 
 ERROR_SCALE_M = 0.3  # colour saturates here (the outlier threshold)
 
 
-def plot_pair(pair: FlowPair, results: Mapping[str, FlowResult], path: str | Path, title: str = "") -> Path:
+def plot_pair(pair: ScanPair, results: Mapping[str, FlowResult], path: str | Path, title: str = "") -> Path:
     """One panel with the ground-truth motion relative to the ego, then one per estimator coloured by EPE."""
     import matplotlib
 

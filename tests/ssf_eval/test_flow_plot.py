@@ -4,8 +4,8 @@ import pytest
 
 from ssf_common.errors import DataError
 from ssf_flow_node.core.estimator import make_estimator
-from ssf_flow_node.core.plot import plot_pair
-from ssf_flow_node.core.synthetic import synthetic_pair
+from ssf_common.dataset.synthetic import synthetic_pair
+from ssf_eval.flow.plot import plot_pair
 
 
 def test_plot_pair_writes_a_png_per_estimator(tmp_path):

@@ -1,4 +1,4 @@
-"""Rigid transforms between numpy 4x4 matrices and geometry_msgs (Pose, Transform, Quaternion)."""
+"""4x4 transforms to and from geometry_msgs (Pose, Transform, Quaternion, Point, Vector3)."""
 
 from __future__ import annotations
 
@@ -63,6 +63,10 @@ def matrix_from_pose(pose: Any) -> np.ndarray:
     return matrix
 
 
-def yaw_of(matrix: np.ndarray) -> float:
-    """Heading (rotation about z) of a 4x4 transform."""
-    return float(np.arctan2(matrix[1, 0], matrix[0, 0]))
+def matrix_from_transform(transform: Any) -> np.ndarray:
+    """4x4 transform of a geometry_msgs/Transform."""
+    q, t = transform.rotation, transform.translation
+    matrix = np.eye(4)
+    matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    matrix[:3, 3] = [t.x, t.y, t.z]
+    return matrix

@@ -6,7 +6,8 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ssf_flow_node.core.data import FlowPair, ego_from_poses
+from ssf_common.dataset.pairs import PointClass, ScanPair, make_pair
+from ssf_common.geometry.se3 import make_pose as pose
 
 
 class Box(NamedTuple):
@@ -15,15 +16,6 @@ class Box(NamedTuple):
     centre: np.ndarray
     size: np.ndarray
     yaw: float
-
-
-def pose(x: float, y: float, z: float, yaw: float) -> np.ndarray:
-    """A 4x4 world <- body transform with a rotation about z."""
-    c, s = np.cos(yaw), np.sin(yaw)
-    matrix = np.eye(4)
-    matrix[:2, :2] = [[c, -s], [s, c]]
-    matrix[:3, 3] = [x, y, z]
-    return matrix
 
 
 def ground_height(xy: np.ndarray) -> np.ndarray:
@@ -89,7 +81,7 @@ def scene_boxes(rng: np.random.Generator, agents: int) -> tuple[list[Box], list[
     return static, moving, motions
 
 
-def synthetic_pair(seed: int = 0, agents: int = 2, ego_step: float = 1.0, points: int = 8192) -> FlowPair:
+def synthetic_pair(seed: int = 0, agents: int = 2, ego_step: float = 1.0, points: int = 8192) -> ScanPair:
     """A scan pair of a street with `agents` moving boxes; the ego moves `ego_step` metres along x."""
     rng = np.random.default_rng(seed)
     static, moving, motions = scene_boxes(rng, agents)
@@ -97,12 +89,14 @@ def synthetic_pair(seed: int = 0, agents: int = 2, ego_step: float = 1.0, points
     pose2 = pose(ego_step, 0.0, 1.8 + 0.01 * ego_step, rng.normal(0.0, 0.01))
     count_box = points // 2 // max(1, len(static) + len(moving))
 
-    def scan(sensor: np.ndarray, moved: bool, generator: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    def scan(sensor: np.ndarray, moved: bool, generator: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         parts = [sample_ground(generator, points - count_box * (len(static) + len(moving)), sensor[:3, 3])]
         labels = [np.zeros(parts[0].shape[0], dtype=np.int32)]
+        classes = [np.full(parts[0].shape[0], PointClass.GROUND, dtype=np.uint8)]
         for box in static:
             parts.append(sample_box(generator, box, count_box, sensor[:3, 3]))
             labels.append(np.zeros(count_box, dtype=np.int32))
+            classes.append(np.full(count_box, PointClass.POLE if box.size[0] < 1.0 else PointClass.BUILDING, np.uint8))
         for index, (box, motion) in enumerate(zip(moving, motions), start=1):
             viewpoint = (np.linalg.inv(motion) @ sensor[:, 3])[:3] if moved else sensor[:3, 3]
             world = sample_box(generator, box, count_box, viewpoint)
@@ -110,12 +104,13 @@ def synthetic_pair(seed: int = 0, agents: int = 2, ego_step: float = 1.0, points
                 world = (motion @ np.column_stack([world, np.ones(len(world))]).T).T[:, :3]
             parts.append(world)
             labels.append(np.full(count_box, index, dtype=np.int32))
+            classes.append(np.full(count_box, PointClass.PEDESTRIAN if box.size[0] < 1.0 else PointClass.VEHICLE, np.uint8))
         world = np.concatenate(parts) + generator.normal(0.0, 0.01, (sum(len(p) for p in parts), 3))
         local = (np.linalg.inv(sensor) @ np.column_stack([world, np.ones(len(world))]).T).T[:, :3]
-        return local.astype(np.float32), np.concatenate(labels)
+        return local.astype(np.float32), np.concatenate(labels), np.concatenate(classes)
 
-    pc1, instance1 = scan(pose1, False, np.random.default_rng(seed + 1))
-    pc2, _ = scan(pose2, True, np.random.default_rng(seed + 2))
+    pc1, instance1, class1 = scan(pose1, False, np.random.default_rng(seed + 1))
+    pc2, _, _ = scan(pose2, True, np.random.default_rng(seed + 2))
     world1 = (pose1 @ np.column_stack([pc1, np.ones(len(pc1))]).T).T
     moved = world1.copy()
     for index, motion in enumerate(motions, start=1):
@@ -123,4 +118,4 @@ def synthetic_pair(seed: int = 0, agents: int = 2, ego_step: float = 1.0, points
         moved[on] = (motion @ world1[on].T).T
     target = (np.linalg.inv(pose2) @ moved.T).T[:, :3]
     flow = (target - pc1).astype(np.float32)
-    return FlowPair(pc1, pc2, flow, instance1 > 0, instance1, ego_from_poses(pose1, pose2))
+    return make_pair(pc1, pc2, flow, instance1 > 0, instance1, class1, pose1, pose2)

@@ -1,0 +1,211 @@
+"""Records (`ssf_common.records`) to and from ROS messages: what every node does at its edges.
+
+Readers validate what they take and raise MessageError with one line naming the problem."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ssf_common import messages, pose_msgs
+from ssf_common.errors import MessageError
+from ssf_common.pointcloud import cloud_to_array, decode_cloud, xyz_to_cloud
+from ssf_common.geometry.se3 import yaw_of
+from ssf_common.records import MotionMask, Obstacles, OdometryEstimate, Plan, SceneFlow, Segmentation, SemanticFlow
+
+FLOW_FIELDS = ("flow_x", "flow_y", "flow_z")
+VELOCITY_COVARIANCE_SIZE = 9
+
+
+def _fields(points: np.ndarray, names: tuple[str, ...], what: str) -> None:
+    present = points.dtype.names or ()
+    missing = [name for name in names if name not in present]
+    if missing:
+        raise MessageError(f"{what} has no {'/'.join(missing)} field (fields: {', '.join(present) or 'none'})")
+
+
+def _finite_xyz(msg: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """All points of a cloud (structured) and their xyz; every point must be finite (these clouds are ours)."""
+    decoded = decode_cloud(msg)
+    if len(decoded.indices) != len(decoded.fields):
+        raise MessageError(f"{what} has {len(decoded.fields) - len(decoded.indices)} points with NaN/Inf coordinates")
+    return decoded.fields, decoded.xyz
+
+
+def _flow_of(points: np.ndarray, what: str) -> np.ndarray:
+    _fields(points, FLOW_FIELDS, what)
+    flow = np.stack([np.asarray(points[name], dtype=np.float32) for name in FLOW_FIELDS], axis=1)
+    if not np.isfinite(flow).all():
+        raise MessageError(f"{what} has NaN/Inf flow values")
+    return flow
+
+
+def _iteration_of(points: np.ndarray) -> int:
+    return int(points["iteration"][0]) if "iteration" in (points.dtype.names or ()) and len(points) else 0
+
+
+def _probabilities(values: np.ndarray, what: str) -> np.ndarray:
+    prob = np.asarray(values, dtype=np.float32)
+    if not np.isfinite(prob).all() or (prob.size and (prob.min() < 0 or prob.max() > 1)):
+        raise MessageError(f"{what} values must be finite probabilities in [0, 1]")
+    return prob
+
+
+def scene_flow_to_cloud(flow: SceneFlow) -> Any:
+    """/ssf/flow: x y z flow_x flow_y flow_z iteration (constant per point)."""
+    return xyz_to_cloud(flow.points, messages.header(flow.stamp_ns, flow.frame_id),
+                        flow_x=flow.flow[:, 0], flow_y=flow.flow[:, 1], flow_z=flow.flow[:, 2],
+                        iteration=np.full(len(flow.points), flow.iteration, dtype=np.uint32))
+
+
+def scene_flow_from_cloud(msg: Any) -> SceneFlow:
+    """A /ssf/flow cloud as a SceneFlow."""
+    points, xyz = _finite_xyz(msg, "flow cloud")
+    return SceneFlow(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz, _flow_of(points, "flow cloud"),
+                     _iteration_of(points))
+
+
+def mask_to_cloud(mask: MotionMask) -> Any:
+    """/ssf/mask and /ssf/mask_hint: x y z mask instance iteration (mask = probability that the point moves)."""
+    return xyz_to_cloud(mask.points, messages.header(mask.stamp_ns, mask.frame_id),
+                        mask=np.asarray(mask.dynamic_prob, dtype=np.float32),
+                        instance=np.asarray(mask.instance, dtype=np.int32),
+                        iteration=np.full(len(mask.points), mask.iteration, dtype=np.uint32))
+
+
+def mask_from_cloud(msg: Any, expected_points: int | None = None) -> MotionMask:
+    """A mask cloud as a MotionMask, checked against the scan it refers to (when its size is known)."""
+    points = cloud_to_array(msg)
+    _fields(points, ("mask", "iteration"), "mask cloud")
+    if expected_points is not None and len(points) != expected_points:
+        raise MessageError(f"mask cloud has {len(points)} points but the scan it refers to has {expected_points}")
+    names = points.dtype.names or ()
+    xyz = np.zeros((len(points), 3), np.float32)
+    if all(name in names for name in ("x", "y", "z")):
+        xyz = np.stack([np.asarray(points[name], dtype=np.float32) for name in ("x", "y", "z")], axis=1)
+    instance = np.asarray(points["instance"], dtype=np.int32) if "instance" in names else None
+    return MotionMask(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz,
+                      _probabilities(points["mask"], "mask cloud"), instance, _iteration_of(points))
+
+
+def semantic_flow_to_cloud(result: SemanticFlow) -> Any:
+    """/ssf/semantic_flow: x y z flow_x flow_y flow_z label instance prob."""
+    seg = result.segmentation
+    return xyz_to_cloud(result.points, messages.header(result.stamp_ns, result.frame_id),
+                        flow_x=result.flow[:, 0], flow_y=result.flow[:, 1], flow_z=result.flow[:, 2],
+                        label=np.asarray(seg.label, dtype=np.uint8), instance=np.asarray(seg.instance, dtype=np.int32),
+                        prob=np.asarray(seg.dynamic_prob, dtype=np.float32))
+
+
+def semantic_flow_from_cloud(msg: Any) -> SemanticFlow:
+    """A /ssf/semantic_flow cloud as a SemanticFlow."""
+    points, xyz = _finite_xyz(msg, "semantic flow cloud")
+    _fields(points, ("label", "instance", "prob"), "semantic flow cloud")
+    label = np.asarray(points["label"], dtype=np.uint8)
+    if label.size and label.max() > 1:
+        raise MessageError("semantic flow cloud labels must be 0 (static) or 1 (dynamic)")
+    segmentation = Segmentation(_probabilities(points["prob"], "semantic flow cloud prob"), label,
+                                np.asarray(points["instance"], dtype=np.int32))
+    return SemanticFlow(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz,
+                        _flow_of(points, "semantic flow cloud"), segmentation)
+
+
+def obstacles_to_msg(obstacles: Obstacles) -> Any:
+    """ssf_interfaces/ObstacleArray."""
+    make = messages.msg_type("ssf_interfaces/msg/Obstacle")
+    pose_type = messages.msg_type("geometry_msgs/msg/Pose")
+    items = [
+        make(id=int(obstacles.ids[i]), kind=int(obstacles.kinds[i]),
+             pose=pose_type(position=pose_msgs.point_msg(obstacles.centres[i]),
+                            orientation=pose_msgs.yaw_quaternion_msg(float(obstacles.yaws[i]))),
+             size=pose_msgs.vector3_msg(obstacles.sizes[i]), velocity=pose_msgs.vector3_msg(obstacles.velocities[i]),
+             velocity_covariance=np.asarray(obstacles.velocity_covariances[i], dtype=np.float64).reshape(9),
+             yaw_rate=float(obstacles.yaw_rates[i]), num_points=int(obstacles.point_counts[i]),
+             confidence=float(obstacles.confidences[i]))
+        for i in range(len(obstacles))
+    ]
+    return messages.msg_type("ssf_interfaces/msg/ObstacleArray")(
+        header=messages.header(obstacles.stamp_ns, obstacles.frame_id), obstacles=items)
+
+
+def obstacles_from_msg(msg: Any) -> Obstacles:
+    """An ObstacleArray as Obstacles (non-finite boxes or velocities are a MessageError)."""
+    items = list(msg.obstacles)
+    poses = [pose_msgs.matrix_from_pose(item.pose) for item in items]
+    obstacles = Obstacles(
+        messages.stamp_ns(msg.header.stamp), msg.header.frame_id,
+        ids=np.array([item.id for item in items], dtype=np.int64),
+        kinds=np.array([item.kind for item in items], dtype=np.uint8),
+        centres=np.array([pose[:3, 3] for pose in poses]).reshape(-1, 3),
+        sizes=np.array([[item.size.x, item.size.y, item.size.z] for item in items]).reshape(-1, 3),
+        yaws=np.array([yaw_of(pose) for pose in poses]),
+        velocities=np.array([[item.velocity.x, item.velocity.y, item.velocity.z] for item in items]).reshape(-1, 3),
+        velocity_covariances=np.array([np.asarray(item.velocity_covariance, dtype=np.float64) for item in items]).reshape(-1, 3, 3),
+        yaw_rates=np.array([item.yaw_rate for item in items]),
+        point_counts=np.array([item.num_points for item in items]),
+        confidences=np.array([item.confidence for item in items]),
+    )
+    for name in ("centres", "sizes", "yaws", "velocities", "velocity_covariances"):
+        if not np.isfinite(getattr(obstacles, name)).all():
+            raise MessageError(f"obstacle array holds NaN/Inf {name.replace('_', ' ')}")
+    return obstacles
+
+
+def odometry_to_msg(odometry: OdometryEstimate) -> Any:
+    """nav_msgs/Odometry: pose in frame_id with covariance, twist in child_frame_id."""
+    twist = messages.msg_type("geometry_msgs/msg/Twist")(linear=pose_msgs.vector3_msg(odometry.twist[:3]),
+                                                         angular=pose_msgs.vector3_msg(odometry.twist[3:]))
+    return messages.msg_type("nav_msgs/msg/Odometry")(
+        header=messages.header(odometry.stamp_ns, odometry.frame_id),
+        child_frame_id=odometry.child_frame_id,
+        pose=messages.msg_type("geometry_msgs/msg/PoseWithCovariance")(
+            pose=pose_msgs.pose_msg(odometry.pose), covariance=np.asarray(odometry.pose_covariance, np.float64).reshape(36)),
+        twist=messages.msg_type("geometry_msgs/msg/TwistWithCovariance")(
+            twist=twist, covariance=np.asarray(odometry.twist_covariance, np.float64).reshape(36)),
+    )
+
+
+def odometry_from_msg(msg: Any) -> OdometryEstimate:
+    """A nav_msgs/Odometry as an OdometryEstimate."""
+    pose = pose_msgs.matrix_from_pose(msg.pose.pose)
+    linear, angular = msg.twist.twist.linear, msg.twist.twist.angular
+    twist = np.array([linear.x, linear.y, linear.z, angular.x, angular.y, angular.z])
+    if not (np.isfinite(pose).all() and np.isfinite(twist).all()):
+        raise MessageError("odometry holds NaN/Inf pose or twist values")
+    return OdometryEstimate(messages.stamp_ns(msg.header.stamp), pose,
+                            np.asarray(msg.pose.covariance, dtype=np.float64).reshape(6, 6), twist,
+                            np.asarray(msg.twist.covariance, dtype=np.float64).reshape(6, 6),
+                            msg.header.frame_id, msg.child_frame_id)
+
+
+def odometry_transform_msg(odometry: OdometryEstimate) -> Any:
+    """/tf message with the frame_id -> child_frame_id transform of an odometry estimate."""
+    return messages.msg_type("tf2_msgs/msg/TFMessage")(transforms=[pose_msgs.transform_stamped_msg(
+        odometry.pose, odometry.stamp_ns, odometry.frame_id, odometry.child_frame_id)])
+
+
+def plan_to_msg(plan: Plan) -> Any:
+    """nav_msgs/Path: one PoseStamped per planned state, stamped at its time."""
+    stamped = messages.msg_type("geometry_msgs/msg/PoseStamped")
+    pose_type = messages.msg_type("geometry_msgs/msg/Pose")
+    poses = [stamped(header=messages.header(plan.stamp_ns + int(round(float(t) * 1e9)), plan.frame_id),
+                     pose=pose_type(position=pose_msgs.point_msg(np.array([state[0], state[1], 0.0])),
+                                    orientation=pose_msgs.yaw_quaternion_msg(float(state[2]))))
+             for t, state in zip(plan.times, plan.states)]
+    return messages.msg_type("nav_msgs/msg/Path")(header=messages.header(plan.stamp_ns, plan.frame_id), poses=poses)
+
+
+def plan_from_msg(msg: Any) -> Plan:
+    """A nav_msgs/Path as a Plan (speeds from consecutive poses)."""
+    stamp = messages.stamp_ns(msg.header.stamp)
+    matrices = [pose_msgs.matrix_from_pose(item.pose) for item in msg.poses]
+    times = np.array([(messages.stamp_ns(item.header.stamp) - stamp) * 1e-9 for item in msg.poses])
+    xy = np.array([m[:2, 3] for m in matrices]).reshape(-1, 2)
+    yaw = np.array([yaw_of(m) for m in matrices])
+    speed = np.zeros(len(xy))
+    if len(xy) > 1:
+        gaps = np.maximum(np.diff(times), 1e-9)
+        speed[:-1] = np.linalg.norm(np.diff(xy, axis=0), axis=1) / gaps
+        speed[-1] = speed[-2]
+    return Plan(stamp, msg.header.frame_id, times, np.column_stack([xy, yaw, speed]))

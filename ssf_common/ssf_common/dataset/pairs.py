@@ -1,0 +1,144 @@
+"""Scan pairs with exact ground truth: the one record every consumer uses (flow, segmentation, odometry, training),
+written by the simulator's export and read back here, as `.npz` files of named arrays."""
+
+from __future__ import annotations
+
+import zipfile
+from collections.abc import Iterator
+from dataclasses import dataclass, fields, replace
+from enum import IntEnum
+from pathlib import Path
+
+import numpy as np
+
+from ssf_common.errors import DataError
+from ssf_common.geometry.se3 import relative_pose
+
+
+
+class PointClass(IntEnum):
+    """Semantic class of a LiDAR point (and of the surface it hit)."""
+
+    GROUND = 0
+    BUILDING = 1
+    POLE = 2
+    VEGETATION = 3
+    PARKED_CAR = 4
+    VEHICLE = 5
+    PEDESTRIAN = 6
+    UNKNOWN = 255  # nobody labelled it
+
+
+@dataclass(frozen=True)
+class ScanPair:
+    """Two consecutive scans, each in its own sensor frame, with the exact flow and labels of scan t.
+
+    pc1 + flow lies on the surfaces seen in pc2 (ego motion included, the FlowNet3D / Argoverse 2 convention)."""
+
+    pc1: np.ndarray  # (N, 3) float32, scan t
+    pc2: np.ndarray  # (M, 3) float32, scan t+1
+    flow: np.ndarray  # (N, 3) float32
+    dynamic1: np.ndarray  # (N,) bool, point on an object that moved
+    instance1: np.ndarray  # (N,) int32, object id, 0 = static scene
+    class1: np.ndarray  # (N,) uint8 PointClass
+    pose1: np.ndarray  # (4, 4) float64, world <- sensor at t
+    pose2: np.ndarray  # (4, 4) float64, world <- sensor at t+1
+    mask1: np.ndarray | None = None  # (N,) float32 dynamic probability from a segmentation, when one was stored
+
+    @property
+    def ego(self) -> np.ndarray:
+        """The ego motion: maps scan-t coordinates of static points into scan t+1's frame."""
+        return relative_pose(self.pose1, self.pose2)
+
+    def with_mask(self, mask: np.ndarray | None) -> ScanPair:
+        """The same pair carrying another stored mask."""
+        return replace(self, mask1=None if mask is None else np.asarray(mask, dtype=np.float32))
+
+
+REQUIRED_KEYS = ("pc1", "pc2", "flow")
+PAIR_KEYS = tuple(field.name for field in fields(ScanPair))
+
+
+def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.ndarray | None = None,
+              instance1: np.ndarray | None = None, class1: np.ndarray | None = None, pose1: np.ndarray | None = None,
+              pose2: np.ndarray | None = None, mask1: np.ndarray | None = None) -> ScanPair:
+    """A ScanPair with canonical dtypes; missing labels are static, unknown class, identity poses."""
+    pc1 = np.ascontiguousarray(np.asarray(pc1)[:, :3], dtype=np.float32)
+    count = pc1.shape[0]
+    return ScanPair(
+        pc1=pc1,
+        pc2=np.ascontiguousarray(np.asarray(pc2)[:, :3], dtype=np.float32),
+        flow=np.ascontiguousarray(flow, dtype=np.float32),
+        dynamic1=np.zeros(count, bool) if dynamic1 is None else np.asarray(dynamic1).astype(bool),
+        instance1=np.zeros(count, np.int32) if instance1 is None else np.asarray(instance1).astype(np.int32),
+        class1=np.full(count, PointClass.UNKNOWN, np.uint8) if class1 is None else np.asarray(class1).astype(np.uint8),
+        pose1=np.eye(4) if pose1 is None else np.asarray(pose1, dtype=np.float64),
+        pose2=np.eye(4) if pose2 is None else np.asarray(pose2, dtype=np.float64),
+        mask1=None if mask1 is None else np.asarray(mask1, dtype=np.float32),
+    )
+
+
+def write_pair(path: str | Path, pair: ScanPair) -> Path:
+    """Write one pair as an uncompressed .npz of its named arrays (mask1 only when present)."""
+    path = Path(path)
+    arrays = {key: getattr(pair, key) for key in PAIR_KEYS if getattr(pair, key) is not None}
+    try:
+        with path.open("wb") as handle:
+            np.savez(handle, **arrays)
+    except OSError as err:
+        raise DataError(f"{path}: cannot write the pair ({err.strerror})") from None
+    return path
+
+
+_SHAPES = {"pc1": ("N", 3), "pc2": (None, 3), "flow": ("N", 3), "dynamic1": ("N",), "instance1": ("N",),
+           "class1": ("N",), "pose1": (4, 4), "pose2": (4, 4), "mask1": ("N",)}
+_KINDS = {"pc1": "f", "pc2": "f", "flow": "f", "pose1": "f", "pose2": "f", "mask1": "f",
+          "dynamic1": "biu", "instance1": "iu", "class1": "iu"}
+
+
+_KIND_NAMES = {"f": "floats", "biu": "booleans or integers", "iu": "integers"}
+
+
+def read_pair(path: str | Path) -> ScanPair:
+    """Read one pair, checking keys, dtypes, shapes and finiteness; one DataError line on anything wrong."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            arrays = {key: archive[key] for key in archive.files if key in _SHAPES}
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
+        raise DataError(f"{path}: not a readable .npz pair ({err})") from None
+    missing = [key for key in REQUIRED_KEYS if key not in arrays]
+    if missing:
+        raise DataError(f"{path}: missing keys {', '.join(missing)} (expected an exported pair)")
+    count = len(arrays["pc1"]) if arrays["pc1"].ndim else -1
+    for key, array in arrays.items():
+        if array.dtype.kind not in _KINDS[key]:
+            raise DataError(f"{path}: '{key}' holds {array.dtype} values, expected {_KIND_NAMES[_KINDS[key]]}")
+        shape = _SHAPES[key]
+        if array.ndim != len(shape) or any(want is not None and (count if want == "N" else want) != got
+                                           for want, got in zip(shape, array.shape)):
+            expected = tuple("N" if want is None else want for want in shape)
+            raise DataError(f"{path}: '{key}' has shape {array.shape}, expected {expected} with N = {count}")
+        if array.dtype.kind == "f" and not np.isfinite(array).all():
+            raise DataError(f"{path}: '{key}' holds NaN or Inf")
+    mask = arrays.get("mask1")
+    if mask is not None and (mask.min(initial=0.0) < 0.0 or mask.max(initial=0.0) > 1.0):
+        raise DataError(f"{path}: 'mask1' must hold probabilities in [0, 1]")
+    return make_pair(**arrays)
+
+
+def pair_files(folder: str | Path) -> list[Path]:
+    """The .npz pairs of an export folder (the folder itself, its pairs/ subfolder, or anywhere below), sorted."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no such folder of exported pairs")
+    files = sorted(folder.glob("*.npz")) or sorted((folder / "pairs").glob("*.npz")) or sorted(folder.rglob("*.npz"))
+    if not files:
+        raise DataError(f"{folder}: holds no .npz pairs (export some with `ssf dataset export`)")
+    return files
+
+
+def read_pairs(folder: str | Path) -> Iterator[ScanPair]:
+    """Every pair of an export folder, in order."""
+    for path in pair_files(folder):
+        yield read_pair(path)

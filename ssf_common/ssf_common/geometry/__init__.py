@@ -1,0 +1,14 @@
+"""Geometry shared by every stage, written once: pure numpy/scipy (plus Open3D's and scikit-learn's C++ where
+they are faster), no ROS.
+
+| module | what |
+| --- | --- |
+| `se3` | 4x4 rigid transforms: make, compose, invert, relative pose, yaw, apply to points, rigid flow |
+| `fitting` | weighted Kabsch (single and batched per label), planar Kabsch, per-label point-to-plane Gauss-Newton |
+| `labels` | per-label sums, means, counts and extents (bincount-based) |
+| `sampling` | one `Sampling` enum: random / voxel / farthest-point, and the index samplers |
+| `neighbours` | KD-tree kNN and radius queries, inverse-distance propagation, Chamfer distance |
+| `clustering` | voxel connected components; DBSCAN / HDBSCAN from scikit-learn |
+| `ground` | height above the local ground on a grid, ground mask |
+| `boxes` | minimum-area oriented rectangles of point sets |
+"""

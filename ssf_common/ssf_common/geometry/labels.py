@@ -1,0 +1,59 @@
+"""Per-label reductions over points (labels are 0..count-1), vectorised with bincount."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def label_counts(labels: np.ndarray, count: int) -> np.ndarray:
+    """Points per label (int64, length count)."""
+    return np.bincount(labels, minlength=count)[:count]
+
+
+def label_sums(values: np.ndarray, labels: np.ndarray, count: int, weights: np.ndarray | None = None) -> np.ndarray:
+    """Per label, the (weighted) sum of values (N,) or (N, C) -> (count,) or (count, C)."""
+    values = np.asarray(values, dtype=np.float64)
+    scale = None if weights is None else np.asarray(weights, dtype=np.float64)
+    if values.ndim == 1:
+        return np.bincount(labels, values if scale is None else values * scale, count)
+    return np.stack([np.bincount(labels, values[:, i] if scale is None else values[:, i] * scale, count)
+                     for i in range(values.shape[1])], axis=1)
+
+
+def label_means(values: np.ndarray, labels: np.ndarray, count: int, weights: np.ndarray | None = None) -> np.ndarray:
+    """Per label, the (weighted) mean of values; zero for empty labels."""
+    total = label_counts(labels, count).astype(np.float64) if weights is None else np.bincount(labels, weights, count)
+    sums = label_sums(values, labels, count, weights)
+    safe = np.where(total > 0, total, 1.0)
+    return sums / (safe if sums.ndim == 1 else safe[:, None])
+
+
+def label_extents(points: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Per label, the larger side (m) of its horizontal axis-aligned bounding box; zero for empty labels."""
+    sides = np.zeros(count)
+    for axis in (0, 1):  # one axis at a time: ufunc.at is ten times faster on 1-D values
+        low, high = np.full(count, np.inf), np.full(count, -np.inf)
+        np.minimum.at(low, labels, points[:, axis])
+        np.maximum.at(high, labels, points[:, axis])
+        sides = np.maximum(sides, np.where(np.isfinite(low), high - low, 0.0))
+    return sides
+
+
+def ragged_arange(lengths: np.ndarray) -> np.ndarray:
+    """Concatenation of arange(n) for each n in lengths."""
+    total = int(lengths.sum())
+    if total == 0:
+        return np.zeros(0, dtype=np.int64)
+    offsets = np.repeat(np.cumsum(lengths) - lengths, lengths)
+    return np.arange(total) - offsets
+
+
+def pick_per_label(labels: np.ndarray, active: np.ndarray, per_label: int, rng: np.random.Generator) -> np.ndarray:
+    """Up to `per_label` random point indices from each active label (labels < 0 are never picked)."""
+    candidates = np.flatnonzero((labels >= 0) & active[np.maximum(labels, 0)])
+    shuffled = candidates[rng.permutation(candidates.size)]
+    order = np.argsort(labels[shuffled], kind="stable")
+    ordered = shuffled[order]
+    sorted_labels = labels[ordered]
+    rank = np.arange(ordered.size) - np.searchsorted(sorted_labels, sorted_labels, side="left")
+    return ordered[rank < per_label]

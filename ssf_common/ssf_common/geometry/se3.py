@@ -1,0 +1,79 @@
+"""Rigid transforms as 4x4 float64 matrices, and their action on (N, 3) points."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def make_pose(x: float = 0.0, y: float = 0.0, z: float = 0.0, yaw: float = 0.0) -> np.ndarray:
+    """A 4x4 transform: rotation `yaw` about z, then translation (x, y, z)."""
+    matrix = yaw_matrix(yaw)
+    matrix[:3, 3] = [x, y, z]
+    return matrix
+
+
+def yaw_matrix(angle: float) -> np.ndarray:
+    """A 4x4 rotation about z by `angle` (rad)."""
+    c, s = np.cos(angle), np.sin(angle)
+    matrix = np.eye(4)
+    matrix[:2, :2] = [[c, -s], [s, c]]
+    return matrix
+
+
+def from_rotation_translation(rotation: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """A 4x4 transform from a 3x3 rotation (or a stack (..., 3, 3)) and a translation (..., 3)."""
+    rotation, translation = np.asarray(rotation, dtype=np.float64), np.asarray(translation, dtype=np.float64)
+    matrix = np.zeros(rotation.shape[:-2] + (4, 4))
+    matrix[..., :3, :3] = rotation
+    matrix[..., :3, 3] = translation
+    matrix[..., 3, 3] = 1.0
+    return matrix
+
+
+def compose(*transforms: np.ndarray) -> np.ndarray:
+    """The product T1 @ T2 @ ... (the rightmost applies first)."""
+    result = np.eye(4)
+    for transform in transforms:
+        result = result @ np.asarray(transform, dtype=np.float64)
+    return result
+
+
+def invert(transform: np.ndarray) -> np.ndarray:
+    """The inverse of a rigid transform (or a stack of them), in closed form: [R^T, -R^T t]."""
+    transform = np.asarray(transform, dtype=np.float64)
+    rotation_t = np.swapaxes(transform[..., :3, :3], -1, -2)
+    return from_rotation_translation(rotation_t, -np.einsum("...ij,...j->...i", rotation_t, transform[..., :3, 3]))
+
+
+def relative_pose(pose1: np.ndarray, pose2: np.ndarray) -> np.ndarray:
+    """pose2^-1 pose1 for world <- sensor poses: maps scan-t coordinates of static points into scan t+1's frame."""
+    return np.linalg.inv(np.asarray(pose2, dtype=np.float64)) @ np.asarray(pose1, dtype=np.float64)
+
+
+def yaw_of(transform: np.ndarray) -> float:
+    """Heading (rotation about z) of a 4x4 transform."""
+    return float(np.arctan2(transform[1, 0], transform[0, 0]))
+
+
+def rotation_angle(transform: np.ndarray) -> float:
+    """Angle (rad) of a transform's rotation, whatever its axis."""
+    cosine = (np.trace(np.asarray(transform)[:3, :3]) - 1.0) / 2.0
+    return float(np.arccos(np.clip(cosine, -1.0, 1.0)))
+
+
+def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 rigid transform to (N, 3) points; float32 out."""
+    return (points @ transform[:3, :3].T + transform[:3, 3]).astype(np.float32)
+
+
+def rigid_flow(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Flow of points that move with a rigid transform: T p - p."""
+    return transform_points(transform, points) - points
+
+
+def yaw_translate(points: np.ndarray, yaw: np.ndarray, translation: np.ndarray) -> np.ndarray:
+    """Per point: rotate by yaw[i] about z, then add translation[i] (N, 3)."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([c * points[:, 0] - s * points[:, 1] + translation[:, 0],
+                     s * points[:, 0] + c * points[:, 1] + translation[:, 1],
+                     points[:, 2] + translation[:, 2]], axis=1)

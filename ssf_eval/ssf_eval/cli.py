@@ -1,0 +1,12 @@
+"""`ssf eval` and `ssf bench` commands of every stage that needs the simulator or several cores together."""
+
+from __future__ import annotations
+
+from ssf_common.cli import CommandGroups
+
+
+def register(groups: CommandGroups) -> None:
+    """Add the evaluation and benchmark commands."""
+    from ssf_eval.flow import cli as flow
+
+    flow.register(groups)

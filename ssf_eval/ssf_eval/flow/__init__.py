@@ -1,0 +1,1 @@
+"""Scene flow evaluation: metrics, the estimator table, the error picture, speed."""
