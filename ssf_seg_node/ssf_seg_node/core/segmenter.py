@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import importlib
+from typing import Callable
+
 from pydantic import Field
 
 from ssf_common.config import Section
@@ -9,7 +12,8 @@ from ssf_common.errors import ConfigError
 from ssf_seg_node.core.base import SegInput, Segmenter
 from ssf_seg_node.core.selection import StaticSelectionConfig
 
-SEGMENTERS: tuple[str, ...] = ()
+# name -> "module:function" building it as function(config: SegConfig, device: str) -> Segmenter (imported lazily)
+SEGMENTER_BUILDERS: dict[str, str] = {}
 
 
 class SegConfig(Section):
@@ -21,7 +25,16 @@ class SegConfig(Section):
 
 
 def make_segmenter(name: str | None = None, config: SegConfig | None = None, device: str = "cpu") -> Segmenter:
-    """The segmenter called `name` (default: config.method) built from its config."""
+    """The segmenter called `name` (default: config.method; `method-input` picks the input too) built from its config."""
     config = config or SegConfig()
     name = name or config.method
-    raise ConfigError(f"unknown segmenter '{name}'; choose one of {', '.join(SEGMENTERS) or '(none yet)'}")
+    method, _, suffix = name.partition("-")
+    if suffix:
+        if suffix not in {item.value for item in SegInput}:
+            raise ConfigError(f"segmenter '{name}': input '{suffix}' is not one of points, flow, both")
+        config = config.model_copy(update={"input": SegInput(suffix)})
+    if method not in SEGMENTER_BUILDERS:
+        raise ConfigError(f"unknown segmenter '{name}'; choose one of {', '.join(sorted(SEGMENTER_BUILDERS)) or '(none)'}")
+    module, _, function = SEGMENTER_BUILDERS[method].partition(":")
+    build: Callable[[SegConfig, str], Segmenter] = getattr(importlib.import_module(module), function)
+    return build(config, device)
