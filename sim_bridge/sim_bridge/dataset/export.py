@@ -9,13 +9,15 @@ from pathlib import Path
 import numpy as np
 from pydantic import Field
 
+from sim_bridge.ros_messages import agent_obstacles
 from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Frame, Simulator
 from ssf_common.config import Section, build, dump
 from ssf_common.dataset.kitti import SequenceWriter
-from ssf_common.dataset.pairs import PointClass, ScanPair, make_pair, write_pair
+from ssf_common.dataset.pairs import PointClass, ScanPair, boxes_from_obstacles, make_pair, write_pair
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.sampling import Sampling, sample_indices
+from ssf_common.geometry.se3 import invert
 
 class PairProtocol(Section):
     """How a pair is cut from two full scans: range crop, ground removal, then N points per scan."""
@@ -82,6 +84,13 @@ def cut_points(frame: Frame, protocol: PairProtocol, rng: np.random.Generator) -
     return kept[sample_indices(frame.scan.points[kept], protocol.points, rng, protocol.sampling, pad=True)]
 
 
+def visible_boxes(frame: Frame) -> np.ndarray:
+    """boxes1 rows of the agents the frame's scan hits, in its sensor frame."""
+    seen = np.isin(frame.agents.ids, np.unique(frame.scan.instance[frame.scan.instance > 0]))
+    world = agent_obstacles(frame.agents.take(seen), frame.stamp_ns)
+    return boxes_from_obstacles(world.transformed(invert(frame.pose), "sensor"))
+
+
 def _pairs_of(frames: Iterator[Frame], seed: int, protocol: PairProtocol) -> Iterator[tuple[ScanPair, Frame, Frame]]:
     previous = next(frames)
     for frame in frames:
@@ -96,6 +105,7 @@ def _pairs_of(frames: Iterator[Frame], seed: int, protocol: PairProtocol) -> Ite
             class1=previous.scan.label[first],
             pose1=previous.pose.copy(),
             pose2=frame.pose.copy(),
+            boxes1=visible_boxes(previous),
         )
         yield pair, previous, frame
         previous = frame
@@ -165,6 +175,8 @@ def export(
             "dynamic1": "bool point on a moving agent",
             "pose1": "float64 4x4 world <- sensor at t",
             "pose2": "float64 4x4 world <- sensor at t+1",
+            "boxes1": "float64 (M,12) agents the scan at t hits, in its sensor frame: id kind x y z length width "
+            "height yaw vx vy vz (centre at half height, velocity in m/s)",
         },
         "sequence": "velodyne/NNNNNN.bin float32 x,y,z,intensity (full scans); poses.txt: KITTI 3x4 rows, "
         "sensor poses relative to the first scan",

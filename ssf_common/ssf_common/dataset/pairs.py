@@ -13,6 +13,7 @@ import numpy as np
 
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import relative_pose
+from ssf_common.records import Obstacles
 
 
 
@@ -44,6 +45,12 @@ class ScanPair:
     pose1: np.ndarray  # (4, 4) float64, world <- sensor at t
     pose2: np.ndarray  # (4, 4) float64, world <- sensor at t+1
     mask1: np.ndarray | None = None  # (N,) float32 dynamic probability from a segmentation, when one was stored
+    boxes1: np.ndarray | None = None  # (M, 11) float64 true objects at t in scan t's frame: BOX_COLUMNS
+
+    @property
+    def objects1(self) -> Obstacles | None:
+        """The true objects at time t (boxes1) as obstacles in scan t's frame, when the pair has them."""
+        return None if self.boxes1 is None else obstacles_from_boxes(self.boxes1)
 
     @property
     def ego(self) -> np.ndarray:
@@ -55,13 +62,31 @@ class ScanPair:
         return replace(self, mask1=None if mask is None else np.asarray(mask, dtype=np.float32))
 
 
+# boxes1 columns: instance id (as in instance1), kind (ObstacleKind), centre, size, yaw, velocity (m/s, scan t's axes)
+BOX_COLUMNS = ("id", "kind", "x", "y", "z", "length", "width", "height", "yaw", "vx", "vy", "vz")
+
+
+def boxes_from_obstacles(obstacles: Obstacles) -> np.ndarray:
+    """(M, 12) boxes1 rows of obstacles."""
+    return np.column_stack([obstacles.ids, obstacles.kinds, obstacles.centres, obstacles.sizes, obstacles.yaws,
+                            obstacles.velocities]).astype(np.float64).reshape(-1, len(BOX_COLUMNS))
+
+
+def obstacles_from_boxes(boxes: np.ndarray, frame_id: str = "sensor") -> Obstacles:
+    """Obstacles of (M, 12) boxes1 rows."""
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, len(BOX_COLUMNS))
+    return Obstacles(0, frame_id, ids=boxes[:, 0].astype(np.int64), kinds=boxes[:, 1].astype(np.uint8),
+                     centres=boxes[:, 2:5], sizes=boxes[:, 5:8], yaws=boxes[:, 8], velocities=boxes[:, 9:12])
+
+
 REQUIRED_KEYS = ("pc1", "pc2", "flow")
 PAIR_KEYS = tuple(field.name for field in fields(ScanPair))
 
 
 def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.ndarray | None = None,
               instance1: np.ndarray | None = None, class1: np.ndarray | None = None, pose1: np.ndarray | None = None,
-              pose2: np.ndarray | None = None, mask1: np.ndarray | None = None) -> ScanPair:
+              pose2: np.ndarray | None = None, mask1: np.ndarray | None = None,
+              boxes1: np.ndarray | None = None) -> ScanPair:
     """A ScanPair with canonical dtypes; missing labels are static, unknown class, identity poses."""
     pc1 = np.ascontiguousarray(np.asarray(pc1)[:, :3], dtype=np.float32)
     count = pc1.shape[0]
@@ -75,6 +100,7 @@ def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.n
         pose1=np.eye(4) if pose1 is None else np.asarray(pose1, dtype=np.float64),
         pose2=np.eye(4) if pose2 is None else np.asarray(pose2, dtype=np.float64),
         mask1=None if mask1 is None else np.asarray(mask1, dtype=np.float32),
+        boxes1=None if boxes1 is None else np.asarray(boxes1, dtype=np.float64).reshape(-1, len(BOX_COLUMNS)),
     )
 
 
@@ -91,8 +117,8 @@ def write_pair(path: str | Path, pair: ScanPair) -> Path:
 
 
 _SHAPES = {"pc1": ("N", 3), "pc2": (None, 3), "flow": ("N", 3), "dynamic1": ("N",), "instance1": ("N",),
-           "class1": ("N",), "pose1": (4, 4), "pose2": (4, 4), "mask1": ("N",)}
-_KINDS = {"pc1": "f", "pc2": "f", "flow": "f", "pose1": "f", "pose2": "f", "mask1": "f",
+           "class1": ("N",), "pose1": (4, 4), "pose2": (4, 4), "mask1": ("N",), "boxes1": (None, len(BOX_COLUMNS))}
+_KINDS = {"pc1": "f", "pc2": "f", "flow": "f", "pose1": "f", "pose2": "f", "mask1": "f", "boxes1": "f",
           "dynamic1": "biu", "instance1": "iu", "class1": "iu"}
 
 

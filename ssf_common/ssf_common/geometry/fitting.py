@@ -13,8 +13,21 @@ MIN_WEIGHT = 1e-9
 
 def weighted_kabsch(source: np.ndarray, target: np.ndarray, weights: np.ndarray | None = None) -> np.ndarray:
     """The 4x4 rigid T minimising sum_i w_i |T s_i - t_i|^2; the identity when fewer than 3 points carry weight."""
-    labels = np.zeros(len(source), dtype=np.int64)
-    return batched_kabsch(source, target, labels, 1, weights)[0]
+    source = np.asarray(source, dtype=np.float64)
+    target = np.asarray(target, dtype=np.float64)
+    w = np.ones(len(source)) if weights is None else np.clip(np.asarray(weights, dtype=np.float64), 0.0, None)
+    total = w.sum()
+    if np.count_nonzero(w > MIN_WEIGHT) < 3 or not total > MIN_WEIGHT:
+        return np.eye(4)
+    mean_s, mean_t = w @ source / total, w @ target / total
+    cross = (source - mean_s).T @ ((target - mean_t) * w[:, None])
+    if not np.isfinite(cross).all():
+        return np.eye(4)
+    u, _, vt = np.linalg.svd(cross)
+    fix = np.diag([1.0, 1.0, 1.0 if np.linalg.det(vt.T @ u.T) >= 0 else -1.0])
+    rotation = vt.T @ fix @ u.T
+    transform = from_rotation_translation(rotation, mean_t - rotation @ mean_s)
+    return transform if np.isfinite(transform).all() else np.eye(4)
 
 
 def batched_kabsch(source: np.ndarray, target: np.ndarray, labels: np.ndarray, count: int,

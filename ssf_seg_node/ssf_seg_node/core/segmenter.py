@@ -10,10 +10,13 @@ from pydantic import Field
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
 from ssf_seg_node.core.base import SegInput, Segmenter
+from ssf_seg_node.core.geometric import GeometricConfig
 from ssf_seg_node.core.selection import StaticSelectionConfig
 
 # name -> "module:function" building it as function(config: SegConfig, device: str) -> Segmenter (imported lazily)
-SEGMENTER_BUILDERS: dict[str, str] = {}
+SEGMENTER_BUILDERS: dict[str, str] = {
+    "geometric": "ssf_seg_node.core.geometric:build",
+}
 
 
 class SegConfig(Section):
@@ -22,6 +25,7 @@ class SegConfig(Section):
     method: str = Field("geometric", description="segmenter name")
     input: SegInput = Field(SegInput.BOTH, description="what the segmenter looks at: points | flow | both")
     selection: StaticSelectionConfig = StaticSelectionConfig()
+    geometric: GeometricConfig = GeometricConfig()
 
 
 def make_segmenter(name: str | None = None, config: SegConfig | None = None, device: str = "cpu") -> Segmenter:

@@ -1,0 +1,107 @@
+"""The learning-free segmenter: motion relative to the static scene, clusters of what moves, a rigid test per cluster.
+
+The classical answer to motion segmentation: compensate the ego motion, keep the off-ground points whose residual
+motion is fast enough, cluster them, and call a cluster a moving object when it is big enough and moves rigidly."""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import Field
+
+from ssf_common.config import Section
+from ssf_common.errors import ConfigError
+from ssf_common.geometry.clustering import voxel_components
+from ssf_common.geometry.fitting import batched_kabsch, weighted_kabsch
+from ssf_common.geometry.ground import height_above_ground
+from ssf_common.geometry.labels import label_counts, label_extents, label_means
+from ssf_common.geometry.se3 import transform_points
+from ssf_seg_node.core.base import SegInput, SegmentationResult, result_from_slots
+
+
+class GeometricConfig(Section):
+    """Thresholds of the learning-free segmenter (speeds in m/s, so they hold at any scan rate)."""
+
+    min_speed: float = Field(0.6, gt=0.0, description="residual speed (m/s) above which a point may move")
+    prior_speed: float = Field(0.3, gt=0.0, description="the same threshold for points the previous mask called dynamic")
+    softness: float = Field(0.3, gt=0.0, description="width of the probability ramp around the threshold, as a share of it")
+    cluster_voxel: float = Field(0.6, gt=0.0, description="voxel edge (m) connecting moving points into objects")
+    min_points: int = Field(5, ge=1, description="smaller moving clusters are noise and stay static")
+    max_extent: float = Field(15.0, gt=0.0, description="larger moving clusters (xy extent, m) are ego-motion error, static")
+    rigidity: float = Field(0.25, gt=0.0, description="largest RMS deviation (m) of a cluster's flow from one rigid motion")
+    ground_cell: float = Field(2.0, gt=0.0, description="grid cell (m) of the ground height estimate")
+    ground_height: float = Field(0.25, gt=0.0, description="points this close above the local ground are ground (static)")
+    ego_iterations: int = Field(4, ge=1, description="reweighted fits of the ego motion when none is given")
+    ego_scale: float = Field(0.1, gt=0.0, description="residual (m) at which an ego-fit point loses half its weight")
+
+
+class GeometricSegmenter:
+    """Ego-compensated residual flow, clustering of the moving points, and a rigid test per cluster."""
+
+    name = "geometric"
+
+    def __init__(self, config: GeometricConfig, dt: float = 0.1) -> None:
+        self.config = config
+        self.dt = dt
+
+    def segment(self, points: np.ndarray, flow: np.ndarray, previous: np.ndarray | None = None,
+                ego: np.ndarray | None = None) -> SegmentationResult:
+        """Static scene and moving objects of scan t from its flow (and the previous mask as a prior)."""
+        points, flow = np.asarray(points, np.float64)[:, :3], np.asarray(flow, np.float64)
+        # 1. the ego motion: given, or fitted robustly to the flow of every point
+        ego = fit_ego_motion(points, flow, previous, self.config) if ego is None else np.asarray(ego, np.float64)
+        # 2. each point's motion relative to the static scene, as a speed
+        speed = np.linalg.norm(points + flow - transform_points(ego, points), axis=1) / self.dt
+        # 3. candidates: off-ground points faster than the threshold (a lower one where the prior says dynamic)
+        threshold = np.full(len(points), self.config.min_speed)
+        if previous is not None:
+            threshold[np.asarray(previous) > 0.5] = self.config.prior_speed
+        off_ground = height_above_ground(points, self.config.ground_cell) >= self.config.ground_height
+        candidates = np.flatnonzero(off_ground & (speed > threshold))
+        # 4. clusters of the candidates; the big-enough, rigidly moving ones are objects
+        labels, count = voxel_components(points[candidates], self.config.cluster_voxel)
+        moving = self.moving_clusters(points[candidates], flow[candidates], labels, count)
+        # 5. slots: the static scene, then one per moving object, with a probability from how fast it moves
+        cluster_speed = label_means(speed[candidates], labels, count)
+        cluster_threshold = label_means(threshold[candidates], labels, count)
+        ramp = self.config.softness * cluster_threshold
+        probability = 1.0 / (1.0 + np.exp(-(cluster_speed - cluster_threshold) / np.maximum(ramp, 1e-6)))
+        slots = np.zeros((len(points), 1 + int(moving.sum())), np.float32)
+        slots[:, 0] = 1.0
+        slot_of_cluster = np.full(count, -1)
+        slot_of_cluster[moving] = np.arange(1, 1 + int(moving.sum()))
+        on_moving = moving[labels]
+        rows, slot = candidates[on_moving], slot_of_cluster[labels[on_moving]]
+        slots[rows, slot] = probability[labels[on_moving]]
+        slots[rows, 0] = 1.0 - slots[rows, slot]
+        static_slots = np.zeros(slots.shape[1], bool)
+        static_slots[0] = True
+        return result_from_slots(slots, static_slots, self.config.min_points)
+
+    def moving_clusters(self, points: np.ndarray, flow: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+        """(count,) bool: clusters with enough points, not too large, whose flow one rigid motion explains."""
+        if count == 0:
+            return np.zeros(0, bool)
+        motions = batched_kabsch(points, points + flow, labels, count)
+        moved = np.einsum("nij,nj->ni", motions[labels, :3, :3], points) + motions[labels, :3, 3]
+        rms = np.sqrt(label_means(np.sum((moved - points - flow) ** 2, axis=1), labels, count))
+        return ((label_counts(labels, count) >= self.config.min_points)
+                & (label_extents(points, labels, count) <= self.config.max_extent)
+                & (rms <= self.config.rigidity))
+
+
+def fit_ego_motion(points: np.ndarray, flow: np.ndarray, previous: np.ndarray | None, config: GeometricConfig) -> np.ndarray:
+    """The rigid motion most of the scene's flow follows: reweighted Kabsch (Cauchy weights), prior dynamics left out."""
+    weights = np.ones(len(points)) if previous is None else (np.asarray(previous) <= 0.5).astype(np.float64)
+    ego = np.eye(4)
+    for _ in range(config.ego_iterations):
+        ego = weighted_kabsch(points, points + flow, weights)
+        residual = np.linalg.norm(transform_points(ego, points) - points - flow, axis=1)
+        weights = (1.0 if previous is None else (np.asarray(previous) <= 0.5)) / (1.0 + (residual / config.ego_scale) ** 2)
+    return ego
+
+
+def build(config, device: str = "cpu") -> GeometricSegmenter:
+    """Factory entry: the geometric segmenter (it reads points and flow together)."""
+    if config.input is not SegInput.BOTH:
+        raise ConfigError(f"segmenter 'geometric' needs points and flow (input both), not '{config.input.value}'")
+    return GeometricSegmenter(config.geometric, config.selection.dt)
