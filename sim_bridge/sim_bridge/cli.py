@@ -167,9 +167,10 @@ def _sim_offline(args: argparse.Namespace) -> int:
 
 def add_protocol_options(parser: argparse.ArgumentParser) -> None:
     """--protocol and the fields it may override (shared by export, eval and bench)."""
-    parser.add_argument("--protocol", choices=("paper", "raw"), default="paper",
+    parser.add_argument("--protocol", choices=("paper", "raw", "whole"), default="paper",
                         help="paper: ground removed, 35 m range, 8192 points (the scene-flow benchmarks' KITTI "
-                        "protocol); raw: whole scans, ground included (default paper)")
+                        "protocol); raw: whole scans, ground included, 8192 points; whole: every point of every scan, "
+                        "as the nodes see them (default paper)")
     parser.add_argument("--points", type=int, help="points per scan (default 8192)")
     parser.add_argument("--sampling", choices=("random", "voxel", "fps"), help="how the points are picked (default random)")
 

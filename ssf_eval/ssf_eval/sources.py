@@ -120,4 +120,6 @@ def _cut(cloud: np.ndarray, protocol: PairProtocol, rng: np.random.Generator) ->
     kept = np.flatnonzero(keep)
     if kept.size == 0:
         raise DataError("a recorded scan has no point left after the protocol's range and ground cut")
+    if protocol.points is None:
+        return kept
     return kept[sample_indices(_xyz(cloud[kept]), protocol.points, rng, protocol.sampling, pad=True)]

@@ -157,12 +157,12 @@ def run_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_estimators(names: list[str], args: argparse.Namespace, skip_missing: bool):
+def build_estimators(names: list[str], args: argparse.Namespace, skip_missing: bool, whole_scans: bool = False):
     """Estimators by name; asf variants without weights are skipped (with a note) when allowed."""
     from ssf_common.errors import DataError
     from ssf_flow_node.core.estimator import make_estimator
 
-    config = flow_config(args)
+    config = flow_config(args, whole_scans)
     estimators = []
     for name in names:
         try:

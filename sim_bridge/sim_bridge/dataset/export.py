@@ -22,7 +22,7 @@ from ssf_common.geometry.se3 import invert
 class PairProtocol(Section):
     """How a pair is cut from two full scans: range crop, ground removal, then N points per scan."""
 
-    points: int = Field(8192, ge=1, description="points per scan")
+    points: int | None = Field(8192, ge=1, description="points per scan; null keeps every point (no sampling)")
     sampling: Sampling = Field(Sampling.RANDOM, description="random | voxel | fps")
     max_range: float | None = Field(35.0, gt=0.0, description="points farther from the sensor are dropped (m); null keeps all")
     remove_ground: bool = Field(True, description="drop points on the ground (ground-truth class) before sampling")
@@ -31,8 +31,10 @@ class PairProtocol(Section):
 PROTOCOLS = {
     # the scene-flow benchmarks' KITTI protocol (FlowNet3D onwards): ground removed, 35 m, 8192 points
     "paper": PairProtocol(),
-    # whole scans, ground and all, as the node sees them
+    # whole scans, ground and all, sampled to N points
     "raw": PairProtocol(max_range=None, remove_ground=False),
+    # every point of every scan, as the nodes see them
+    "whole": PairProtocol(points=None, max_range=None, remove_ground=False),
 }
 
 DEFAULT_WARMUP_S = 2.0  # the traffic starts from rest: before this, few agents move
@@ -81,6 +83,8 @@ def cut_points(frame: Frame, protocol: PairProtocol, rng: np.random.Generator) -
     kept = kept_points(frame, protocol)
     if kept.size == 0:
         raise DataError(f"frame {frame.index}: no point left after the protocol's range and ground cut")
+    if protocol.points is None:
+        return kept
     return kept[sample_indices(frame.scan.points[kept], protocol.points, rng, protocol.sampling, pad=True)]
 
 

@@ -58,7 +58,8 @@ def run_eval(args: argparse.Namespace) -> int:
         if path is not None:
             check_writable(path, what)
     torch.set_num_threads(args.threads)
-    estimators = build_estimators(args.estimators, args, skip_missing=args.estimators == list(ALL_ESTIMATORS))
+    estimators = build_estimators(args.estimators, args, skip_missing=args.estimators == list(ALL_ESTIMATORS),
+                                  whole_scans=args.protocol == "whole")
     source = pairs_from_args(args)
     pairs = source.pairs
     print(f"evaluating {len(estimators)} estimators on {len(pairs)} pairs ({source.description}), masks: {args.masks}",
@@ -72,7 +73,7 @@ def run_eval(args: argparse.Namespace) -> int:
                    "results": [{"estimator": r.name, "ms_median": r.ms_median, "frames": r.frames,
                                 **{split: getattr(r.scores, split)._asdict() for split in ("all", "static", "dynamic")}}
                                for r in evaluation.results]}
-        write_result(args.json, payload, {"flow": flow_config(args), "estimators": args.estimators,
+        write_result(args.json, payload, {"flow": flow_config(args, whole_scans=args.protocol == "whole"), "estimators": args.estimators,
                                           "masks": args.masks, "source": source.source})
     if args.plot and evaluation.last_pair is not None:
         from ssf_eval.flow.plot import plot_pair

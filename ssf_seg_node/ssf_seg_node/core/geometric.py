@@ -24,12 +24,13 @@ class GeometricConfig(Section):
     min_speed: float = Field(0.6, gt=0.0, description="residual speed (m/s) above which a point may move")
     prior_speed: float = Field(0.3, gt=0.0, description="the same threshold for points the previous mask called dynamic")
     softness: float = Field(0.3, gt=0.0, description="width of the probability ramp around the threshold, as a share of it")
-    cluster_voxel: float = Field(0.6, gt=0.0, description="voxel edge (m) connecting moving points into objects")
-    min_points: int = Field(5, ge=1, description="smaller moving clusters are noise and stay static")
+    cluster_voxel: float = Field(1.0, gt=0.0, description="voxel edge (m) connecting moving points into objects")
+    min_points: int = Field(3, ge=1, description="smaller moving clusters are noise and stay static")
     max_extent: float = Field(15.0, gt=0.0, description="larger moving clusters (xy extent, m) are ego-motion error, static")
     rigidity: float = Field(0.25, gt=0.0, description="largest RMS deviation (m) of a cluster's flow from one rigid motion")
     ground_cell: float = Field(2.0, gt=0.0, description="grid cell (m) of the ground height estimate")
-    ground_height: float = Field(0.25, gt=0.0, description="points this close above the local ground are ground (static)")
+    ground_height: float = Field(0.0, ge=0.0, description="points this close above the local ground are ground and stay "
+                                 "static (0: the flow alone decides, as on scans whose ground was removed)")
     ego_iterations: int = Field(4, ge=1, description="reweighted fits of the ego motion when none is given")
     ego_scale: float = Field(0.1, gt=0.0, description="residual (m) at which an ego-fit point loses half its weight")
 
@@ -55,8 +56,10 @@ class GeometricSegmenter:
         threshold = np.full(len(points), self.config.min_speed)
         if previous is not None:
             threshold[np.asarray(previous) > 0.5] = self.config.prior_speed
-        off_ground = height_above_ground(points, self.config.ground_cell) >= self.config.ground_height
-        candidates = np.flatnonzero(off_ground & (speed > threshold))
+        moving = speed > threshold
+        if self.config.ground_height > 0:
+            moving &= height_above_ground(points, self.config.ground_cell) >= self.config.ground_height
+        candidates = np.flatnonzero(moving)
         # 4. clusters of the candidates; the big-enough, rigidly moving ones are objects
         labels, count = voxel_components(points[candidates], self.config.cluster_voxel)
         moving = self.moving_clusters(points[candidates], flow[candidates], labels, count)
