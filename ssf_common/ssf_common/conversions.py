@@ -28,9 +28,9 @@ def _fields(points: np.ndarray, names: tuple[str, ...], what: str) -> None:
 def _finite_xyz(msg: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
     """All points of a cloud (structured) and their xyz; every point must be finite (these clouds are ours)."""
     decoded = decode_cloud(msg)
-    if len(decoded.indices) != len(decoded.fields):
-        raise MessageError(f"{what} has {len(decoded.fields) - len(decoded.indices)} points with NaN/Inf coordinates")
-    return decoded.fields, decoded.xyz
+    if len(decoded.indices) != len(decoded.points):
+        raise MessageError(f"{what} has {len(decoded.points) - len(decoded.indices)} points with NaN/Inf coordinates")
+    return decoded.points, decoded.xyz
 
 
 def _flow_of(points: np.ndarray, what: str) -> np.ndarray:

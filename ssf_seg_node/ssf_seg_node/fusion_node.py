@@ -1,20 +1,107 @@
-"""ssf_fusion_node: mutual-promotion loop of flow and segmentation (issue: fusion).
+"""ssf_fusion_node: the flow ⇄ segmentation loop across processes, and the obstacles of each converged scan.
 
-Until that stage's algorithm lands, the node joins the graph on its input topic and reports what arrives.
-"""
+/ssf/flow + /ssf/mask -> /ssf/mask_hint (next iteration) or, once converged: /ssf/semantic_flow and /ssf/obstacles;
+/ssf/fusion_state every iteration."""
 
 from __future__ import annotations
 
-from ssf_common import topics
-from ssf_common.graph_node import ListeningNode
-from ssf_common.middleware import QOS_DEFAULT, run
+import time
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from ssf_common import messages, topics
+from ssf_common.config import Section
+from ssf_common.conversions import mask_from_cloud, mask_to_cloud, obstacles_to_msg, scene_flow_from_cloud, semantic_flow_to_cloud
+from ssf_common.errors import MessageError
+from ssf_common.geometry.fitting import weighted_kabsch
+from ssf_common.middleware import QOS_DEFAULT, Node, run
+from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, LoopStatus
+from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles
 
 
-class FusionNode(ListeningNode):
-    """Graph shell of ssf_fusion_node."""
+class FusionNodeConfig(Section):
+    """The loop's convergence, its patience, and how obstacles are made."""
+
+    fusion: FusionConfig = FusionConfig()
+    obstacles: ObstacleConfig = ObstacleConfig()
+    timeout_s: float = Field(0.5, gt=0.0, description="a scan whose loop waits longer is finished with its best answer")
+    dt: float = Field(0.1, gt=0.0, description="seconds between scans until the stamps tell")
+
+
+class FusionNode(Node):
+    """Translates flow and mask clouds into loop decisions, and decisions into hints, results and obstacles."""
 
     def __init__(self, argv: list[str] | None = None) -> None:
-        super().__init__("ssf_fusion_node", {topics.MASK: ("sensor_msgs/msg/PointCloud2", QOS_DEFAULT)}, argv=argv)
+        super().__init__("ssf_fusion_node", argv=argv)
+        self.config = self.declare_config(FusionNodeConfig)
+        report_period = self.declare_parameter("report_period_s", 5.0).value
+        self.loop = DistributedLoop(self.config.fusion, self.config.timeout_s)
+        self.dt = self.config.dt
+        self.last_flow_stamp: int | None = None
+        self.hint_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, QOS_DEFAULT)
+        self.result_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, QOS_DEFAULT)
+        self.obstacle_pub = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, QOS_DEFAULT)
+        self.state_pub = self.create_publisher("ssf_interfaces/msg/FusionState", topics.FUSION_STATE, QOS_DEFAULT)
+        self.create_timer(0.05, self.on_timer)
+        self.create_timer(report_period, self._report)
+        self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
+        self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK, self.on_mask, QOS_DEFAULT)
+
+    def on_flow(self, msg: Any) -> None:
+        """Remember S^(i) of the scan in progress."""
+        try:
+            flow = scene_flow_from_cloud(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+            return
+        if flow.iteration == 0:
+            if self.last_flow_stamp is not None and flow.stamp_ns > self.last_flow_stamp:
+                self.dt = (flow.stamp_ns - self.last_flow_stamp) * 1e-9
+            self.last_flow_stamp = flow.stamp_ns
+        for finish in self.loop.on_flow(flow, time.monotonic()):
+            self._publish_result(finish)
+
+    def on_mask(self, msg: Any) -> None:
+        """Decide on the segmentation of S^(i): another iteration, or the scan's answer."""
+        try:
+            mask = mask_from_cloud(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
+            return
+        decision = self.loop.on_mask(mask, time.monotonic())
+        if isinstance(decision, Continue):
+            self._publish_state(decision.status)
+            self.hint_pub.publish(mask_to_cloud(decision.hint))
+        elif isinstance(decision, Finish):
+            self._publish_result(decision)
+
+    def on_timer(self) -> None:
+        """Finish a scan that has waited too long."""
+        for finish in self.loop.on_timer(time.monotonic()):
+            self._publish_result(finish)
+
+    def _publish_result(self, finish: Finish) -> None:
+        result = finish.result
+        self._publish_state(finish.status)
+        self.result_pub.publish(semantic_flow_to_cloud(result))
+        static = 1.0 - result.segmentation.dynamic_prob
+        ego = weighted_kabsch(result.points, result.points + result.flow, static)
+        obstacles = extract_obstacles(result.points, result.flow, result.segmentation, ego, self.dt, result.stamp_ns,
+                                      result.frame_id, self.config.obstacles)
+        self.obstacle_pub.publish(obstacles_to_msg(obstacles))
+
+    def _publish_state(self, status: LoopStatus) -> None:
+        self.state_pub.publish(messages.msg_type("ssf_interfaces/msg/FusionState")(
+            header=messages.header(status.stamp_ns, ""), iteration=status.iteration,
+            delta_total=float(status.delta_total), delta_flow=float(status.delta_flow),
+            delta_mask=float(status.delta_mask), converged=bool(status.converged), num_points=status.num_points,
+            num_static=status.num_static, num_clusters=status.num_clusters))
+
+    def _report(self) -> None:
+        counts = ", ".join(f"{reason} {count}" for reason, count in self.loop.finished.items())
+        self.get_logger().info(f"scans finished: {counts}")
 
 
 def main(argv: list[str] | None = None) -> int:

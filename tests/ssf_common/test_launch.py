@@ -103,7 +103,7 @@ def test_launch_prefixes_restarts_and_stops_everything(tmp_path):
     while time.monotonic() < deadline:
         line = launcher.stdout.readline()
         lines.append(line)
-        if "[seg]" in line and "received" in line and any("not restarted" in l for l in lines):
+        if "[seg]" in line and "segmented 0 flows" in line and any("not restarted" in l for l in lines):
             break
     launcher.send_signal(signal.SIGINT)
     rest, _ = launcher.communicate(timeout=30)
@@ -111,7 +111,7 @@ def test_launch_prefixes_restarts_and_stops_everything(tmp_path):
     assert launcher.returncode == 0, output
     assert "[crasher] exited with code 2; restart 1/1" in output
     assert "[crasher] exited with code 2; not restarted" in output
-    assert re.search(r"\[seg\] \[INFO\] .*\[seg\]: received /ssf/flow: 0", output)
+    assert re.search(r"\[seg\] \[INFO\] .*\[seg\]: segmented 0 flows", output)
     pids = [int(pid) for pid in re.findall(r"started \(pid (\d+)\)", output)]
     assert len(pids) == 4  # seg, odom, crasher twice
     assert not any(alive(pid) for pid in pids)

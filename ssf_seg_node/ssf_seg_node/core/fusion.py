@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
-from ssf_common.records import Segmentation
+from ssf_common.records import MotionMask, SceneFlow, Segmentation, SemanticFlow
 from ssf_seg_node.core.base import Segmenter
 
 
@@ -131,3 +131,124 @@ class FusionLoop:
                 return FusionResult(steps, converged=True)
             previous_flow, mask = estimate.flow, new_mask
         return FusionResult(steps, converged=False)
+
+
+class LoopStatus(NamedTuple):
+    """One iteration of a scan's loop, as /ssf/fusion_state reports it."""
+
+    stamp_ns: int
+    iteration: int
+    delta_total: float
+    delta_flow: float
+    delta_mask: float
+    converged: bool
+    num_points: int
+    num_static: int
+    num_clusters: int
+
+
+@dataclass(frozen=True)
+class Continue:
+    """Not converged yet: send this mask to the flow estimator for the next iteration."""
+
+    hint: MotionMask
+    status: LoopStatus
+
+
+@dataclass(frozen=True)
+class Finish:
+    """Converged (or stopped on N_iter or a timeout): the scan's semantic flow."""
+
+    result: SemanticFlow
+    status: LoopStatus
+    reason: str  # "converged" | "max_iterations" | "timeout" | "superseded"
+
+
+@dataclass
+class _Scan:
+    stamp_ns: int
+    frame_id: str
+    points: np.ndarray
+    started_s: float
+    flows: dict[int, np.ndarray] = field(default_factory=dict)
+    masks: dict[int, MotionMask] = field(default_factory=dict)  # mask computed from the flow of iteration i
+
+
+class DistributedLoop:
+    """The fusion loop when flow and segmentation run in other processes: it takes S^(i) and the mask computed from
+    it as they arrive, keyed by stamp and iteration, and decides to continue (a mask hint) or to finish. A lost or
+    late message never stalls it: after `timeout_s` the best answer so far is published."""
+
+    def __init__(self, config: FusionConfig, timeout_s: float = 0.5) -> None:
+        self.config = config
+        self.timeout_s = timeout_s
+        self.scan: _Scan | None = None
+        self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0}
+
+    def on_flow(self, flow: SceneFlow, now_s: float) -> list[Finish]:
+        """Remember S^(i); a flow of a newer scan finishes the current one with what it has."""
+        done: list[Finish] = []
+        if self.scan is None or flow.stamp_ns != self.scan.stamp_ns:
+            if self.scan is not None and flow.stamp_ns < self.scan.stamp_ns:
+                return done  # a late answer for a scan already given up
+            if self.scan is not None:
+                done += self._finish_best("superseded")
+            self.scan = _Scan(flow.stamp_ns, flow.frame_id, np.asarray(flow.points), now_s)
+        if len(flow.points) != len(self.scan.points):
+            return done
+        self.scan.flows[flow.iteration] = np.asarray(flow.flow, np.float32)
+        return done
+
+    def on_mask(self, mask: MotionMask, now_s: float) -> Continue | Finish | None:
+        """The segmentation of S^(i) arrived: converged, stopped, or continue with it as the next mask hint."""
+        scan = self.scan
+        if scan is None or mask.stamp_ns != scan.stamp_ns or mask.iteration not in scan.flows:
+            return None
+        if len(mask.dynamic_prob) != len(scan.points):
+            return None
+        i = mask.iteration
+        scan.masks[i] = mask
+        flow, previous_flow = scan.flows[i], scan.flows.get(i - 1)
+        previous_mask = scan.masks.get(i - 1)
+        delta_flow = flow_change(flow, previous_flow)
+        delta_mask = mask_change(mask.dynamic_prob, None if previous_mask is None else previous_mask.dynamic_prob)
+        delta_total = self.config.alpha * delta_flow + self.config.beta * delta_mask
+        converged = delta_total < self.config.epsilon
+        status = self._status(i, delta_total, delta_flow, delta_mask, converged, mask)
+        if converged or i + 1 >= self.config.max_iterations:
+            return self._finish(i, status, "converged" if converged else "max_iterations")
+        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, mask.dynamic_prob, mask.instance, i + 1), status)
+
+    def on_timer(self, now_s: float) -> list[Finish]:
+        """Give up on a scan that has waited too long, publishing the best answer so far."""
+        if self.scan is not None and now_s - self.scan.started_s > self.timeout_s:
+            return self._finish_best("timeout")
+        return []
+
+    def _status(self, iteration: int, total: float, flow: float, mask: float, converged: bool, seg: MotionMask) -> LoopStatus:
+        static = int(np.count_nonzero(seg.dynamic_prob <= 0.5))
+        clusters = int(np.unique(seg.instance[seg.instance > 0]).size)
+        return LoopStatus(self.scan.stamp_ns, iteration, total, flow, mask, converged, len(seg.dynamic_prob), static, clusters)
+
+    def _finish_best(self, reason: str) -> list[Finish]:
+        scan = self.scan
+        if scan is None:
+            return []
+        if not scan.masks:  # no segmentation arrived: nothing trustworthy to publish
+            self.scan = None
+            self.finished[reason] += 1
+            return []
+        i = max(scan.masks)
+        mask = scan.masks[i]
+        status = self._status(i, float("nan"), float("nan"), float("nan"), False, mask)
+        return [self._finish(i, status, reason)]
+
+    def _finish(self, iteration: int, status: LoopStatus, reason: str) -> Finish:
+        scan = self.scan
+        mask = scan.masks[iteration]
+        segmentation = Segmentation.from_probability(mask.dynamic_prob, mask.instance)
+        result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, scan.flows[iteration], segmentation,
+                              iterations=iteration + 1, converged=reason == "converged")
+        self.finished[reason] += 1
+        self.scan = None
+        return Finish(result, status, reason)
