@@ -33,6 +33,7 @@ class GeometricConfig(Section):
                                  "static (0: the flow alone decides, as on scans whose ground was removed)")
     ego_iterations: int = Field(4, ge=1, description="reweighted fits of the ego motion when none is given")
     ego_scale: float = Field(0.1, gt=0.0, description="residual (m) at which an ego-fit point loses half its weight")
+    ego_points: int = Field(4096, ge=16, description="random points the ego fit uses (it needs few)")
 
 
 class GeometricSegmenter:
@@ -93,13 +94,16 @@ class GeometricSegmenter:
 
 
 def fit_ego_motion(points: np.ndarray, flow: np.ndarray, previous: np.ndarray | None, config: GeometricConfig) -> np.ndarray:
-    """The rigid motion most of the scene's flow follows: reweighted Kabsch (Cauchy weights), prior dynamics left out."""
-    weights = np.ones(len(points)) if previous is None else (np.asarray(previous) <= 0.5).astype(np.float64)
-    ego = np.eye(4)
+    """The rigid motion most of the scene's flow follows: reweighted Kabsch (Cauchy weights) on a random subset,
+    prior dynamics left out."""
+    pick = np.random.default_rng(0).choice(len(points), min(len(points), config.ego_points), replace=False)
+    points, flow = points[pick], flow[pick]
+    prior = np.ones(len(points)) if previous is None else (np.asarray(previous)[pick] <= 0.5).astype(np.float64)
+    weights, ego = prior, np.eye(4)
     for _ in range(config.ego_iterations):
         ego = weighted_kabsch(points, points + flow, weights)
         residual = np.linalg.norm(transform_points(ego, points) - points - flow, axis=1)
-        weights = (1.0 if previous is None else (np.asarray(previous) <= 0.5)) / (1.0 + (residual / config.ego_scale) ** 2)
+        weights = prior / (1.0 + (residual / config.ego_scale) ** 2)
     return ego
 
 
