@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from sim_bridge.ego import Outcome, VelocityCommand
-from sim_bridge.traffic import AgentStates
+from sim_bridge.agents import AgentStates
 from sim_bridge.world import World
 
 STOP_GAP = 3.0

@@ -76,3 +76,24 @@ def rectangle_circle_distance(rects: Rectangles, centres: np.ndarray, radii: np.
 def circle_distance(ca: np.ndarray, ra: np.ndarray, cb: np.ndarray, rb: np.ndarray) -> np.ndarray:
     """Distance between pairs of circles, 0 where they overlap."""
     return np.maximum(np.linalg.norm(ca - cb, axis=-1) - ra - rb, 0.0)
+
+
+@dataclass(frozen=True)
+class DiscCover:
+    """Discs covering each footprint: owner agent, offset along the heading, radius."""
+
+    owner: np.ndarray
+    offset: np.ndarray
+    radius: np.ndarray
+
+    def centres(self, position: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+        """Disc centres (D, 2) for agent positions (N, 2) and yaws (N,)."""
+        heading = np.stack([np.cos(yaw), np.sin(yaw)], -1)[self.owner]
+        return position[self.owner] + self.offset[:, None] * heading
+
+
+def rectangle_cover(length: np.ndarray, width: np.ndarray, owner: np.ndarray) -> DiscCover:
+    """Three discs along each rectangle that together contain it."""
+    offsets = np.stack([-length / 3, np.zeros_like(length), length / 3], 1).reshape(-1)
+    radius = np.repeat(np.hypot(length / 6, width / 2), 3)
+    return DiscCover(np.repeat(owner, 3), offsets, radius)

@@ -8,7 +8,7 @@ import numpy as np
 
 from sim_bridge.footprints import Rectangles
 from sim_bridge.simulator import Simulator
-from sim_bridge.traffic import AgentKind
+from sim_bridge.agents import AgentKind
 from sim_bridge.world import PointClass, World
 from ssf_common.errors import DataError
 

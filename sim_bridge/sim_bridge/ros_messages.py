@@ -10,7 +10,7 @@ from sim_bridge.ego import EgoState
 from sim_bridge.ground_truth import FlowTruth
 from sim_bridge.lidar import Scan
 from sim_bridge.simulator import EpisodeStatus
-from sim_bridge.traffic import AgentKind, AgentStates
+from sim_bridge.agents import AgentKind, AgentStates
 from ssf_common import messages
 from ssf_common import pose_msgs
 from ssf_common.conversions import obstacles_to_msg

@@ -12,7 +12,8 @@ from sim_bridge.footprints import Rectangles, rectangle_circle_distance, rectang
 from sim_bridge.ground_truth import FlowTruth, scene_flow
 from sim_bridge.lidar import Lidar, Scan
 from sim_bridge.scenario import Scenario
-from sim_bridge.traffic import AgentKind, AgentStates, EgoFootprint, Traffic, agent_mesh
+from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint, agent_mesh
+from sim_bridge.traffic import Traffic
 from sim_bridge.world import PointClass, World
 
 CLEARANCE_RADIUS = 30.0

@@ -11,12 +11,12 @@ agent whose new disc cover would overlap another agent or the ego, so agents nev
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from enum import IntEnum
-
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint
+from sim_bridge.footprints import DiscCover, rectangle_cover
+from sim_bridge.routes import Loops
 from sim_bridge.scenario import AgentsConfig
 from sim_bridge.world import World
 from ssf_common.errors import ConfigError
@@ -34,132 +34,6 @@ IDM_ACCEL = 1.5
 IDM_DECEL = 2.5
 CLEARANCE_MARGIN = 0.3
 PEOPLE_NEIGHBOUR_RADIUS = 5.5
-
-
-class AgentKind(IntEnum):
-    """Agent kind, numbered like ssf_interfaces/Obstacle KIND_*."""
-
-    VEHICLE = 1
-    PEDESTRIAN = 2
-
-
-@dataclass(frozen=True)
-class AgentStates:
-    """Every agent at one instant; positions are footprint centres on the ground, world frame."""
-
-    ids: np.ndarray  # (N,) int32 instance ids, 1..N
-    kind: np.ndarray  # (N,) uint8 AgentKind
-    position: np.ndarray  # (N, 3)
-    yaw: np.ndarray  # (N,)
-    velocity: np.ndarray  # (N, 2) world frame, m/s
-    yaw_rate: np.ndarray  # (N,) rad/s
-    size: np.ndarray  # (N, 3) length, width, height (pedestrians: diameter, diameter, height)
-
-    def __len__(self) -> int:
-        return len(self.ids)
-
-    def take(self, mask: np.ndarray) -> AgentStates:
-        """The agents selected by a boolean mask or index array."""
-        return AgentStates(
-            self.ids[mask],
-            self.kind[mask],
-            self.position[mask],
-            self.yaw[mask],
-            self.velocity[mask],
-            self.yaw_rate[mask],
-            self.size[mask],
-        )
-
-    def poses(self) -> np.ndarray:
-        """World <- agent transforms (N, 4, 4)."""
-        poses = np.tile(np.eye(4), (len(self.ids), 1, 1))
-        cos, sin = np.cos(self.yaw), np.sin(self.yaw)
-        poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = cos, -sin, sin, cos
-        poses[:, :3, 3] = self.position
-        return poses
-
-
-@dataclass(frozen=True)
-class EgoFootprint:
-    """The ego vehicle as the agents see it: a rectangle and its velocity."""
-
-    centre: np.ndarray  # (2,)
-    yaw: float
-    length: float
-    width: float
-    velocity: np.ndarray  # (2,)
-
-
-@dataclass(frozen=True)
-class DiscCover:
-    """Discs covering each footprint: owner agent, offset along the heading, radius."""
-
-    owner: np.ndarray
-    offset: np.ndarray
-    radius: np.ndarray
-
-    def centres(self, position: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-        """Disc centres (D, 2) for agent positions (N, 2) and yaws (N,)."""
-        heading = np.stack([np.cos(yaw), np.sin(yaw)], -1)[self.owner]
-        return position[self.owner] + self.offset[:, None] * heading
-
-
-def rectangle_cover(length: np.ndarray, width: np.ndarray, owner: np.ndarray) -> DiscCover:
-    """Three discs along each rectangle that together contain it."""
-    offsets = np.stack([-length / 3, np.zeros_like(length), length / 3], 1).reshape(-1)
-    radius = np.repeat(np.hypot(length / 6, width / 2), 3)
-    return DiscCover(np.repeat(owner, 3), offsets, radius)
-
-
-@dataclass(frozen=True)
-class Loops:
-    """Each agent's closed route: a rectangle in Frenet space (s_a..s_b, d_a..d_b), walked from (s_a, d_a)."""
-
-    s_a: np.ndarray
-    s_b: np.ndarray
-    d_a: np.ndarray
-    d_b: np.ndarray
-
-    def perimeter(self) -> np.ndarray:
-        """Loop length in Frenet units."""
-        return 2 * (self.s_b - self.s_a) + 2 * np.abs(self.d_b - self.d_a)
-
-    def project(self, s: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Loop parameters (N, 4) of the nearest point on each of the four edges, and distances to them."""
-        along, across = self.s_b - self.s_a, np.abs(self.d_b - self.d_a)
-        sign = np.sign(self.d_b - self.d_a)
-        t0 = np.clip(s - self.s_a, 0, along)
-        t1 = np.clip((d - self.d_a) * sign, 0, across)
-        t2 = np.clip(self.s_b - s, 0, along)
-        t3 = np.clip((self.d_b - d) * sign, 0, across)
-        u = np.stack([t0, along + t1, along + across + t2, 2 * along + across + t3], 1)
-        distance = np.stack(
-            [
-                np.hypot(self.s_a + t0 - s, self.d_a - d),
-                np.hypot(self.s_b - s, self.d_a + sign * t1 - d),
-                np.hypot(self.s_b - t2 - s, self.d_b - d),
-                np.hypot(self.s_a - s, self.d_b - sign * t3 - d),
-            ],
-            1,
-        )
-        return u, distance
-
-    def frenet(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Frenet point at loop parameter u."""
-        along, across = self.s_b - self.s_a, np.abs(self.d_b - self.d_a)
-        u = np.mod(u, self.perimeter())
-        sign = np.sign(self.d_b - self.d_a)
-        s = np.select(
-            [u < along, u < along + across, u < 2 * along + across],
-            [self.s_a + u, self.s_b, self.s_b - (u - along - across)],
-            self.s_a,
-        )
-        d = np.select(
-            [u < along, u < along + across, u < 2 * along + across],
-            [self.d_a, self.d_a + sign * (u - along), self.d_b],
-            self.d_b - sign * (u - 2 * along - across),
-        )
-        return s, d
 
 
 class Traffic:
@@ -578,29 +452,3 @@ def _idm_speed(
         1 - (speed / np.maximum(desired, 1e-6)) ** 4 - (np.maximum(wanted_gap, 0.0) / np.maximum(gap, 0.1)) ** 2
     )
     return np.clip(speed + accel * dt, 0.0, np.maximum(gap - 0.5, 0.0) / dt)
-
-
-def agent_mesh(states: AgentStates, centre: np.ndarray, radius: float):
-    """Triangles of every agent within radius of centre (x, y); owners are agent indices."""
-    from sim_bridge.meshes import BOX, CYLINDER, TriangleSoup, instances
-    from sim_bridge.world import PointClass
-
-    near = np.linalg.norm(states.position[:, :2] - centre, axis=1) <= radius + 3.0
-    vehicles = np.flatnonzero(near & (states.kind == AgentKind.VEHICLE))
-    people = np.flatnonzero(near & (states.kind == AgentKind.PEDESTRIAN))
-    size = states.size
-    return TriangleSoup.merge(
-        [
-            instances(
-                BOX, size[vehicles], states.yaw[vehicles], states.position[vehicles], PointClass.VEHICLE, vehicles
-            ),
-            instances(
-                CYLINDER,
-                np.c_[size[people, :1] / 2, size[people, :1] / 2, size[people, 2]],
-                states.yaw[people],
-                states.position[people],
-                PointClass.PEDESTRIAN,
-                people,
-            ),
-        ]
-    )

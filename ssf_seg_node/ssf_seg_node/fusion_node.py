@@ -8,7 +8,6 @@ from __future__ import annotations
 import time
 from typing import Any
 
-import numpy as np
 from pydantic import Field
 
 from ssf_common import messages, topics

@@ -8,7 +8,8 @@ from scipy.spatial import cKDTree
 
 from sim_bridge.footprints import Rectangles, point_rectangle_distance, rectangles_overlap
 from sim_bridge.scenario import load_scenario
-from sim_bridge.traffic import AgentKind, AgentStates, EgoFootprint, Traffic
+from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint
+from sim_bridge.traffic import Traffic
 from sim_bridge.world import World
 
 

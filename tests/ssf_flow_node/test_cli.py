@@ -1,6 +1,5 @@
 """The `ssf flow estimate` and `ssf train flow` commands end to end."""
 
-import json
 
 import numpy as np
 import pytest
