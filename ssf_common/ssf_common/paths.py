@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -11,16 +12,33 @@ from ssf_common.errors import DataError
 
 
 def check_writable(path: str | Path, what: str = "output") -> Path:
-    """Fail early, with one line, when `path` cannot be written (its folder is created when missing)."""
+    """Fail now, in one line, unless `path` can be written as a file; its folder is created when missing."""
     path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise DataError(f"{path}: cannot create the {what} folder ({err.strerror})") from None
     if path.is_dir():
-        raise DataError(f"{path}: is a folder; give a file name for the {what}")
-    if not os.access(path.parent, os.W_OK | os.X_OK) or (path.exists() and not os.access(path, os.W_OK)):
-        raise DataError(f"{path}: the {what} cannot be written here")
+        raise DataError(f"{path}: is a folder; the {what} needs a file name")
+    _make_folder(path.parent, path, what)
+    existed = path.exists()
+    try:
+        with path.open("ab"):
+            pass
+    except OSError as err:
+        raise DataError(f"{path}: cannot write the {what} ({_reason(err)})") from None
+    if not existed:
+        path.unlink(missing_ok=True)
+    return path
+
+
+def check_writable_dir(path: str | Path, what: str = "output folder") -> Path:
+    """Fail now, in one line, unless `path` is (or can be made) a folder we can create files in."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise DataError(f"{path}: is a file; the {what} must be a folder")
+    _make_folder(path, path, what)
+    try:
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".ssf_write_check_"):
+            pass
+    except OSError as err:
+        raise DataError(f"{path}: cannot write into the {what} ({_reason(err)})") from None
     return path
 
 
@@ -31,5 +49,18 @@ def save_npy(path: str | Path, values: np.ndarray) -> Path:
         with path.open("wb") as handle:
             np.save(handle, values)
     except OSError as err:
-        raise DataError(f"{path}: cannot write ({err.strerror})") from None
+        raise DataError(f"{path}: cannot write ({_reason(err)})") from None
     return path
+
+
+def _make_folder(folder: Path, path: Path, what: str) -> None:
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise DataError(f"{path}: cannot create the folder of the {what} ({_reason(err)})") from None
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise DataError(f"{path}: the folder {folder} is not writable (for the {what})")
+
+
+def _reason(err: OSError) -> str:
+    return err.strerror or type(err).__name__

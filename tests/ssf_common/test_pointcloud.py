@@ -5,7 +5,7 @@ import struct
 import numpy as np
 import pytest
 
-from ssf_common import messages, pointcloud, scan_io
+from ssf_common import messages, pointcloud, scans
 from ssf_common.errors import MessageError
 
 HEADER = messages.header(1_673_400_472_138_016_708, "lidar_top")
@@ -196,7 +196,7 @@ def test_array_to_cloud_rejects_what_pointfield_cannot_carry():
 @pytest.mark.parametrize("name", ["vlp16_1673400472138016708.pcd", "vlp32_1713492677464078412.pcd"])
 def test_real_scans_survive_pcd_cloud_cdr_cloud_bit_exact(shared_data, name):
     path = shared_data / "lidar_scans" / name
-    points = scan_io.read_points(path)
+    points = scans.read_points(path)
     raw = path.read_bytes()
     file_data = raw[len(raw) - points.size * points.dtype.itemsize :]
     assert points.tobytes() == file_data  # the reader kept every byte of the binary PCD
@@ -209,7 +209,7 @@ def test_real_scans_survive_pcd_cloud_cdr_cloud_bit_exact(shared_data, name):
     if name.startswith("vlp16"):
         assert back.point_step == 32
         assert field_table(back)[3:6] == [("intensity", 12, 2, 1), ("return_type", 13, 2, 1), ("channel", 14, 4, 1)]
-    np.testing.assert_array_equal(pointcloud.decode_cloud(back).xyz, scan_io.read_scan(path)[:, :3])
+    np.testing.assert_array_equal(pointcloud.decode_cloud(back).xyz, scans.read_scan(path)[:, :3])
 
 
 def good_cloud():

@@ -5,7 +5,7 @@ import struct
 import numpy as np
 import pytest
 
-from ssf_common import scan_io
+from ssf_common import scans
 from ssf_common.errors import DataError
 
 ALL_PCD_TYPES = np.dtype([
@@ -28,26 +28,26 @@ def random_points(dtype: np.dtype, count: int, seed: int = 0) -> np.ndarray:
     return points
 
 
-@pytest.mark.parametrize("encoding", scan_io.PCD_ENCODINGS)
+@pytest.mark.parametrize("encoding", scans.PCD_ENCODINGS)
 def test_pcd_round_trip_keeps_every_type_size_and_count(tmp_path, encoding):
     points = random_points(ALL_PCD_TYPES, 301)
     points["y"][[3, 7]] = np.nan
     path = tmp_path / f"cloud_{encoding}.pcd"
-    scan_io.write_pcd(path, points, encoding=encoding)
-    back = scan_io.read_points(path)
+    scans.write_pcd(path, points, encoding=encoding)
+    back = scans.read_points(path)
     assert back.dtype == ALL_PCD_TYPES
     assert back.tobytes() == points.tobytes()
-    scan = scan_io.read_scan(path)
+    scan = scans.read_scan(path)
     assert scan.shape == (299, 4) and scan.dtype == np.float32
     np.testing.assert_array_equal(scan[:, 3], np.delete(points["intensity"], [3, 7]).astype(np.float32))
 
 
 def test_pcd_written_organized_keeps_width_and_height(tmp_path):
     points = random_points(np.dtype([("x", "<f4"), ("y", "<f4"), ("z", "<f4")]), 24).reshape(4, 6)
-    scan_io.write_pcd(tmp_path / "organized.pcd", points)
+    scans.write_pcd(tmp_path / "organized.pcd", points)
     header = (tmp_path / "organized.pcd").read_bytes().split(b"DATA")[0]
     assert b"WIDTH 6\nHEIGHT 4\n" in header and b"POINTS 24\n" in header
-    assert scan_io.read_points(tmp_path / "organized.pcd").tobytes() == points.tobytes()
+    assert scans.read_points(tmp_path / "organized.pcd").tobytes() == points.tobytes()
 
 
 def test_hand_written_pcd_with_padding_columns_and_comments(tmp_path):
@@ -57,21 +57,21 @@ def test_hand_written_pcd_with_padding_columns_and_comments(tmp_path):
     )
     body = struct.pack("<fff4xf", 1.0, 2.0, 3.0, 0.5) + struct.pack("<fff4xf", -1.0, -2.0, -3.0, 0.25)
     (tmp_path / "padded.pcd").write_bytes(header.encode() + body)
-    points = scan_io.read_points(tmp_path / "padded.pcd")
+    points = scans.read_points(tmp_path / "padded.pcd")
     assert points.dtype.names == ("x", "y", "z", "intensity")
-    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "padded.pcd"), [[1, 2, 3, 0.5], [-1, -2, -3, 0.25]])
+    np.testing.assert_array_equal(scans.read_scan(tmp_path / "padded.pcd"), [[1, 2, 3, 0.5], [-1, -2, -3, 0.25]])
     ascii_text = header.replace("DATA binary", "DATA ascii").replace("SIZE 4 4 4 1 4", "SIZE 4 4 4 4 4")
     ascii_text = ascii_text.replace("COUNT 1 1 1 4 1", "COUNT 1 1 1 1 1")
     (tmp_path / "ascii.pcd").write_text(ascii_text + "1 2 3 0 0.5\n-1 -2 -3 0 0.25\n")
-    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "ascii.pcd"), [[1, 2, 3, 0.5], [-1, -2, -3, 0.25]])
+    np.testing.assert_array_equal(scans.read_scan(tmp_path / "ascii.pcd"), [[1, 2, 3, 0.5], [-1, -2, -3, 0.25]])
 
 
 def test_lzf_decodes_overlapping_back_references():
     # literal 'ab', then a back reference of length 7 at distance 2: 'abababababa'... (liblzf format)
     stream = bytes([1]) + b"ab" + bytes([(5 << 5) | 0, 1])
-    assert scan_io.lzf_decompress(stream, 9) == b"ababababa"
+    assert scans.lzf_decompress(stream, 9) == b"ababababa"
     long_run = bytes([0]) + b"z" + bytes([(7 << 5), 100, 0])
-    assert scan_io.lzf_decompress(long_run, 110) == b"z" * 110
+    assert scans.lzf_decompress(long_run, 110) == b"z" * 110
 
 
 @pytest.mark.parametrize("kind", ["repetitive", "random", "mixed"])
@@ -82,8 +82,8 @@ def test_lzf_round_trip(kind):
         "random": rng.integers(0, 256, 20000, dtype=np.uint8).tobytes(),
         "mixed": np.repeat(rng.integers(0, 4, 4000, dtype=np.uint8), 3).tobytes() + rng.bytes(3000),
     }[kind]
-    compressed = scan_io.lzf_compress(data)
-    assert scan_io.lzf_decompress(compressed, len(data)) == data
+    compressed = scans.lzf_compress(data)
+    assert scans.lzf_decompress(compressed, len(data)) == data
     if kind == "repetitive":
         assert len(compressed) < len(data) // 20
 
@@ -109,14 +109,14 @@ def open3d_files(tmp_path_factory):
 @pytest.mark.parametrize("name", ["compressed.pcd", "binary.pcd", "binary.ply", "ascii.ply"])
 def test_files_written_by_open3d_are_read(open3d_files, name):
     folder, xyz, _ = open3d_files
-    scan = scan_io.read_scan(folder / name)
+    scan = scans.read_scan(folder / name)
     tolerance = 1e-5 if name == "ascii.ply" else 0  # Open3D's ASCII PLY keeps 6 significant digits
     np.testing.assert_allclose(scan, xyz, rtol=tolerance, atol=tolerance)
 
 
 def test_open3d_reads_our_compressed_pcd(open3d_files, tmp_path):
     _, xyz, o3d = open3d_files
-    scan_io.write_pcd(tmp_path / "ours.pcd", xyz.astype(np.float32), encoding="binary_compressed")
+    scans.write_pcd(tmp_path / "ours.pcd", xyz.astype(np.float32), encoding="binary_compressed")
     np.testing.assert_array_equal(np.asarray(o3d.io.read_point_cloud(str(tmp_path / "ours.pcd")).points), xyz)
 
 
@@ -142,36 +142,36 @@ def test_ply_ascii_and_binary_with_other_elements(tmp_path):
     }
     for name, content in files.items():
         (tmp_path / name).write_bytes(content)
-        np.testing.assert_array_equal(scan_io.read_scan(tmp_path / name), expected, err_msg=name)
-    assert scan_io.read_points(tmp_path / "little.ply")["intensity"].dtype == np.uint8
+        np.testing.assert_array_equal(scans.read_scan(tmp_path / name), expected, err_msg=name)
+    assert scans.read_points(tmp_path / "little.ply")["intensity"].dtype == np.uint8
 
 
 def test_npy_and_kitti_bin(tmp_path):
     xyzi = np.random.default_rng(6).normal(size=(40, 4)).astype(np.float32)
     np.save(tmp_path / "xyz.npy", xyzi[:, :3].astype(np.float64))
     np.save(tmp_path / "xyzi.npy", xyzi)
-    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "xyz.npy"), xyzi[:, :3])
-    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "xyzi.npy"), xyzi)
-    scan_io.write_bin(tmp_path / "000000.bin", xyzi)
+    np.testing.assert_array_equal(scans.read_scan(tmp_path / "xyz.npy"), xyzi[:, :3])
+    np.testing.assert_array_equal(scans.read_scan(tmp_path / "xyzi.npy"), xyzi)
+    scans.write_bin(tmp_path / "000000.bin", xyzi)
     assert (tmp_path / "000000.bin").stat().st_size == 40 * 16
-    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "000000.bin"), xyzi)
-    scan_io.write_bin(tmp_path / "xyz.bin", xyzi[:, :3])
-    np.testing.assert_array_equal(scan_io.read_scan(tmp_path / "xyz.bin")[:, 3], np.zeros(40))
+    np.testing.assert_array_equal(scans.read_scan(tmp_path / "000000.bin"), xyzi)
+    scans.write_bin(tmp_path / "xyz.bin", xyzi[:, :3])
+    np.testing.assert_array_equal(scans.read_scan(tmp_path / "xyz.bin")[:, 3], np.zeros(40))
 
 
 def test_real_scans(shared_data):
-    scans = shared_data / "lidar_scans"
-    vlp16 = scan_io.read_points(scans / "vlp16_1673400472138016708.pcd")
+    folder = shared_data / "lidar_scans"
+    vlp16 = scans.read_points(folder / "vlp16_1673400472138016708.pcd")
     assert vlp16.size == 14831 and vlp16.dtype.itemsize == 32
     assert vlp16["channel"].max() <= 15 and np.all(np.isfinite(vlp16["distance"]))
     ranges = np.linalg.norm(np.stack([vlp16[axis] for axis in "xyz"], 1), axis=1)
     np.testing.assert_allclose(ranges, vlp16["distance"], atol=0.01)
-    assert scan_io.read_scan(scans / "vlp16_1673400472138016708.pcd").shape == (14831, 4)
-    assert scan_io.read_scan(scans / "vlp32_1713492677464078412.pcd").shape == (26216, 3)
+    assert scans.read_scan(folder / "vlp16_1673400472138016708.pcd").shape == (14831, 4)
+    assert scans.read_scan(folder / "vlp32_1713492677464078412.pcd").shape == (26216, 3)
 
 
 def write_pcd_bytes(tmp_path, encoding="binary"):
-    scan_io.write_pcd(tmp_path / "good.pcd", random_points(ALL_PCD_TYPES, 50), encoding=encoding)
+    scans.write_pcd(tmp_path / "good.pcd", random_points(ALL_PCD_TYPES, 50), encoding=encoding)
     return (tmp_path / "good.pcd").read_bytes()
 
 
@@ -201,7 +201,7 @@ def test_broken_pcd_files_give_one_line(tmp_path, case):
     path = tmp_path / "broken.pcd"
     path.write_bytes(corrupt(write_pcd_bytes(tmp_path, encoding)))
     with pytest.raises(DataError, match=problem) as caught:
-        scan_io.read_points(path)
+        scans.read_points(path)
     assert str(caught.value).startswith(str(path)) and "\n" not in str(caught.value)
 
 
@@ -233,10 +233,10 @@ def test_broken_scan_files_give_one_line(tmp_path, name, content, problem):
     else:
         path.write_bytes(content)
     with pytest.raises(DataError, match=problem) as caught:
-        scan_io.read_scan(path)
+        scans.read_scan(path)
     assert "\n" not in str(caught.value)
 
 
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(DataError, match="missing.pcd: no such file"):
-        scan_io.read_scan(tmp_path / "missing.pcd")
+        scans.read_scan(tmp_path / "missing.pcd")
