@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import asdict
@@ -11,7 +10,10 @@ from pathlib import Path
 
 from ssf_common.cli import CommandGroups
 from sim_bridge.scenario import overrides_from_pairs
-from ssf_common.errors import ConfigError, DataError
+from ssf_common.checks import require_finite, require_seed
+from ssf_common.errors import ConfigError
+from ssf_common.jsonio import dumps_strict, write_json
+from ssf_common.paths import check_writable
 
 
 def register(groups: CommandGroups) -> None:
@@ -39,9 +41,7 @@ def register(groups: CommandGroups) -> None:
     sim.add_argument("--rate", type=float, default=10.0, help="lockstep steps per second with the follower; 0 = flat out")
     sim.add_argument("--offline", action="store_true", help="no middleware: the core loop only, as fast as possible")
     sim.add_argument("--duration", type=float, default=None, help="stop after this many simulated seconds")
-    sim.add_argument(
-        "--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override, e.g. agents.count=20"
-    )
+    add_override_option(sim)
     sim.add_argument("--render", type=Path, default=None, metavar="PNG", help="draw a top-down picture of the episode")
     sim.add_argument("--json", type=Path, default=None, metavar="FILE", help="write the episode summary as JSON")
     sim.set_defaults(func=_sim, realtime=False)
@@ -61,7 +61,7 @@ def register(groups: CommandGroups) -> None:
                         help="simulated seconds before the first pair, so that the traffic is moving (default 2)")
     export.add_argument("--out", type=Path, required=True)
     add_protocol_options(export)
-    export.add_argument("--set", action="append", default=[], metavar="NAME=VALUE", help="scenario override")
+    add_override_option(export)
     export.set_defaults(func=_export)
 
     bench = groups.bench.add_parser(
@@ -79,14 +79,30 @@ def register(groups: CommandGroups) -> None:
     bench.set_defaults(func=_bench)
 
 
-def _write_json(path: Path, payload: object) -> None:
-    try:
-        path.write_text(json.dumps(payload, indent=2) + "\n")
-    except OSError as err:
-        raise DataError(f"{path}: cannot write ({err.strerror})") from None
+def add_override_option(parser: argparse.ArgumentParser) -> None:
+    """-p/--param NAME:=VALUE scenario overrides (--set is an old name of the same option)."""
+    parser.add_argument(
+        "-p", "--param", dest="set", action="append", default=[], metavar="NAME:=VALUE",
+        help="scenario setting, e.g. -p agents.count:=20 (YAML value; NAME=VALUE works too)",
+    )
+    parser.add_argument("--set", dest="set", action="append", help=argparse.SUPPRESS)
+
+
+def check_sim_args(args: argparse.Namespace) -> None:
+    """Refuse bad numbers and unwritable outputs in one line, before the episode runs."""
+    if args.seed is not None:
+        require_seed(args.seed)
+    if args.duration is not None:
+        require_finite(args.duration, "--duration", above=0.0)
+    require_finite(args.rate, "--rate", at_least=0.0)
+    if args.json:
+        check_writable(args.json, "--json summary")
+    if args.render:
+        check_writable(args.render, "--render picture")
 
 
 def _sim(args: argparse.Namespace) -> int:
+    check_sim_args(args)
     if not args.offline:
         return _sim_node(args)
     return _sim_offline(args)
@@ -98,6 +114,7 @@ def _sim_node(args: argparse.Namespace) -> int:
     from ssf_common.middleware import run
 
     load_scenario(args.scenario, overrides_from_pairs(args.set))  # a bad scenario is a CLI error, before any node starts
+    from ssf_common.launch import param_text
 
     parameters: dict[str, object] = {
         "scenario": args.scenario,
@@ -112,9 +129,9 @@ def _sim_node(args: argparse.Namespace) -> int:
     ros_args = ["--ros-args"]
     for name, value in parameters.items():
         if value != "":
-            ros_args += ["-p", f"{name}:={value}"]
+            ros_args += ["-p", f"{name}:={param_text(value)}"]
     if args.set:
-        ros_args += ["-p", "overrides:=[" + ", ".join(f"'{pair}'" for pair in args.set) + "]"]
+        ros_args += ["-p", f"overrides:={param_text(list(args.set))}"]
     nodes: list[SimBridgeNode] = []
 
     def make_node(argv: list[str]) -> SimBridgeNode:
@@ -123,7 +140,7 @@ def _sim_node(args: argparse.Namespace) -> int:
 
     code = run(make_node, ros_args)
     if code == 0 and nodes and nodes[0].summary is not None:
-        print(json.dumps(nodes[0].summary))
+        print(dumps_strict(nodes[0].summary, indent=None))
     return code
 
 
@@ -155,9 +172,9 @@ def _sim_offline(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     summary = episode_summary(sim, time.monotonic() - started)
-    print(json.dumps(summary))
+    print(dumps_strict(summary, indent=None))
     if args.json:
-        _write_json(args.json, summary)
+        write_json(args.json, summary)
     if args.render:
         from sim_bridge.render import render_episode
 
@@ -222,9 +239,13 @@ def _bench(args: argparse.Namespace) -> int:
 
     if args.warmup < 0:
         raise ConfigError(f"--warmup must not be negative, got {args.warmup}")
+    if args.seed is not None:
+        require_seed(args.seed)
+    if args.json:
+        check_writable(args.json, "--json figures")
     rows = run_bench(args.scenario, counts, args.steps, args.seed, args.warmup, progress)
     payload = [asdict(row) for row in rows]
-    print(json.dumps(payload, indent=2))
+    print(dumps_strict(payload))
     if args.json:
-        _write_json(args.json, payload)
+        write_json(args.json, payload)
     return 0

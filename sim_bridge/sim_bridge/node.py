@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import json
 import time
 from enum import Enum
-from pathlib import Path
 from typing import Any
 
 from pydantic import Field
@@ -15,8 +13,12 @@ from sim_bridge.ego import VelocityCommand
 from sim_bridge.scenario import load_scenario, overrides_from_pairs
 from sim_bridge.simulator import Frame, Simulator, episode_summary
 from ssf_common import topics
+from ssf_common.checks import SEED_MAX
 from ssf_common.config import Section
+from ssf_common.errors import SsfError
+from ssf_common.jsonio import dumps_strict, write_json
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, QOS_SENSOR_DATA, Node, run
+from ssf_common.paths import check_writable
 
 
 DISCOVERY_SETTLE_S = 0.5
@@ -41,7 +43,7 @@ class SimNodeConfig(Section):
 
     scenario: str = "urban_100"
     overrides: list[str] = Field(default_factory=list, description="scenario settings as NAME=VALUE, e.g. agents.count=20")
-    seed: int = Field(-1, description="-1: the scenario's own seed")
+    seed: int = Field(-1, ge=-1, le=SEED_MAX, description="-1: the scenario's own seed")
     mode: Mode = Mode.LOCKSTEP
     driver: Driver = Driver.FOLLOW
     command_timeout_s: float = Field(0.5, gt=0, description="lockstep: apply the last command after this wait")
@@ -61,7 +63,10 @@ class SimBridgeNode(Node):
     def __init__(self, argv: list[str] | None = None) -> None:
         super().__init__("sim_bridge", argv=argv)
         self.config = self.declare_config(SimNodeConfig)
-        scenario = load_scenario(self.config.scenario, overrides_from_pairs(self.config.overrides))
+        for path, what in ((self.config.summary, "episode summary"), (self.config.render, "episode picture")):
+            if path:
+                check_writable(path, what)  # before the episode, not after it
+        scenario = load_scenario(self.config.scenario, overrides_from_pairs(self.config.overrides, "overrides"))
         self.sim = Simulator(scenario, None if self.config.seed < 0 else self.config.seed)
         self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
         self.command = VelocityCommand()
@@ -69,6 +74,7 @@ class SimBridgeNode(Node):
         self.published_at = 0.0
         self.step_ms: list[float] = []
         self.finished = False
+        self.exit_code = 0
         self.summary: dict[str, Any] | None = None
         self.pub_clock = self.create_publisher("rosgraph_msgs/msg/Clock", topics.CLOCK, QOS_DEFAULT)
         self.pub_points = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, QOS_SENSOR_DATA)
@@ -168,20 +174,33 @@ class SimBridgeNode(Node):
 
     def _finish(self, frame: Frame) -> None:
         self.finished = True
-        self.pub_episode.publish(self._result(frame))
-        self.summary = episode_summary(self.sim, time.monotonic() - self.created_at, self.step_ms)
-        self.get_logger().info("episode over: " + json.dumps(self.summary))
-        if self.config.summary:
-            Path(self.config.summary).parent.mkdir(parents=True, exist_ok=True)
-            Path(self.config.summary).write_text(json.dumps(self.summary, indent=2) + "\n")
         try:
-            if self.config.render:
-                from sim_bridge.render import render_episode
-
-                render_episode(self.sim, self.config.render)
+            self.pub_episode.publish(self._result(frame))
+            self.summary = episode_summary(self.sim, time.monotonic() - self.created_at, self.step_ms)
+            self.get_logger().info("episode over: " + dumps_strict(self.summary, indent=None))
+            self._write_results()
         finally:
             if self.config.exit_when_done:
                 self.request_shutdown()
+
+    def _write_results(self) -> None:
+        """The summary JSON and the picture, each failure logged once and reflected in the exit code."""
+        writers = []
+        if self.config.summary:
+            writers.append(lambda: write_json(self.config.summary, self.summary))
+        if self.config.render:
+            from sim_bridge.render import render_episode
+
+            writers.append(lambda: render_episode(self.sim, self.config.render))
+        for write in writers:
+            try:
+                write()
+            except SsfError as err:
+                self.exit_code = 1
+                self.get_logger().error(str(err))
+            except Exception as err:  # noqa: BLE001 - the episode is over either way; say what failed
+                self.exit_code = 1
+                self.get_logger().error(f"writing the episode results failed ({type(err).__name__}: {err})")
 
 
 def main(argv: list[str] | None = None) -> int:

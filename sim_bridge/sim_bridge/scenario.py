@@ -7,10 +7,11 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from ssf_common.config import Section, build, read_yaml
+from ssf_common.config import Section, build, parse_overrides, read_yaml
 from ssf_common.errors import ConfigError
 
 SpeedRange = tuple[float, float]
+MAX_GROUND_CELLS = 4_000_000  # the ground grid spans the route's bounding box: about 2 km x 2 km at 1 m
 
 
 def _check_range(name: str, value: SpeedRange) -> None:
@@ -150,7 +151,22 @@ class Scenario(Section):
                 raise ValueError(f"route.waypoints has a repeated point {list(a)}")
         if self.ego.lane >= self.route.lanes_per_direction:
             raise ValueError(f"ego.lane {self.ego.lane} must be below route.lanes_per_direction")
+        self._ground_fits()
         return self
+
+    def _ground_fits(self) -> None:
+        """The world's ground grid covers the route plus margins; refuse one too large to build."""
+        route, ground = self.route, self.ground
+        margin = ground.margin + route.extension + route.corner_radius + route.lanes_per_direction * route.lane_width
+        margin += route.parking_width + route.sidewalk_width
+        xs, ys = [p[0] for p in route.waypoints], [p[1] for p in route.waypoints]
+        cells = ((max(xs) - min(xs) + 2 * margin) / ground.resolution) * ((max(ys) - min(ys) + 2 * margin) / ground.resolution)
+        if cells > MAX_GROUND_CELLS:
+            raise ValueError(
+                f"route.waypoints span {max(xs) - min(xs):.0f} m x {max(ys) - min(ys):.0f} m: with the margins "
+                f"that is a ground grid of {cells:.3g} cells at ground.resolution {ground.resolution:g} m, more than "
+                f"{MAX_GROUND_CELLS}"
+            )
 
 
 def scenario_dir() -> Path:
@@ -181,14 +197,6 @@ def with_agents(scenario: Scenario, count: int) -> Scenario:
     return build(Scenario, scenario.model_dump(), {"agents.count": count}, source=scenario.name)
 
 
-def overrides_from_pairs(pairs: list[str]) -> dict[str, Any]:
-    """Dotted scenario settings from NAME=VALUE strings (values read as YAML), as `--set` and the node take them."""
-    import yaml
-
-    overrides: dict[str, Any] = {}
-    for pair in pairs:
-        name, sep, text = pair.partition("=")
-        if not sep or not name.strip():
-            raise ConfigError(f"scenario override {pair!r}: expected NAME=VALUE")
-        overrides[name.strip()] = yaml.safe_load(text)
-    return overrides
+def overrides_from_pairs(pairs: list[str], flag: str = "-p") -> dict[str, Any]:
+    """Dotted scenario settings from NAME:=VALUE (or NAME=VALUE) items, as `ssf sim -p` and the node take them."""
+    return parse_overrides(pairs, flag)

@@ -15,6 +15,7 @@ from sim_bridge.scenario import Scenario
 from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint, agent_mesh
 from sim_bridge.traffic import Traffic
 from sim_bridge.world import PointClass, World
+from ssf_common.checks import require_seed
 
 CLEARANCE_RADIUS = 30.0
 
@@ -59,7 +60,7 @@ class Simulator:
 
     def __init__(self, scenario: Scenario, seed: int | None = None):
         self.scenario = scenario
-        self.seed = scenario.seed if seed is None else int(seed)
+        self.seed = scenario.seed if seed is None else require_seed(seed, "seed")
         self.dt = scenario.episode.dt
         self.world = World(scenario, self.seed)
         self.lidar = Lidar(scenario.lidar, self.world.static_mesh())

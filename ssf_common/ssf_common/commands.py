@@ -44,17 +44,10 @@ def _register_graph_commands(groups: CommandGroups) -> None:
 
 
 def _launch(args: argparse.Namespace) -> int:
-    from ssf_common.errors import ConfigError
+    from ssf_common.config import parse_overrides
     from ssf_common.launch import Launcher, load_graph
-    from ssf_common.middleware.params import parse_value
 
-    overrides = {}
-    for item in args.param:
-        if ":=" not in item:
-            raise ConfigError(f"--param expects NAME:=VALUE, got {item!r}")
-        name, value = item.split(":=", 1)
-        overrides[name] = parse_value(value)
-    return Launcher(load_graph(args.graph, overrides)).run(args.duration)
+    return Launcher(load_graph(args.graph, parse_overrides(args.param, "-p"))).run(args.duration)
 
 
 def _register_bag_commands(groups: CommandGroups) -> None:

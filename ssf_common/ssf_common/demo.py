@@ -2,15 +2,23 @@
 
 from __future__ import annotations
 
+import importlib
 import json
 import sys
 import time
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
+from typing import Any
 
 from ssf_common import config as config_lib
+from ssf_common.checks import require_finite, require_seed
+from ssf_common.errors import ConfigError, DataError, SsfError
+from ssf_common.jsonio import dumps_strict
 from ssf_common.launch import GraphSpec, Launcher, NodeSpec, load_graph
+from ssf_common.paths import check_writable_dir
+
+RECORDED_TOPICS = ("/lidar/points", "/clock", "/sim/episode", "/ssf/flow")  # what a healthy run must hold
 
 
 @dataclass(frozen=True)
@@ -61,23 +69,71 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int) ->
     return graph.model_copy(update={"nodes": nodes})
 
 
-def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1) -> int:
-    """Run the graph until the episode ends; print where everything is."""
-    paths = DemoPaths(out)
-    if paths.recording.exists():
-        from ssf_common.errors import ConfigError
+def check_inputs(scenario: str, duration_s: float, out: Path, seed: int) -> None:
+    """Refuse bad flags in one line before any process starts."""
+    require_finite(duration_s, "--duration", above=0.0)
+    if seed != -1:
+        require_seed(seed, "--seed")
+    try:  # the simulator's own reader, when sim_bridge is installed; otherwise its node reports it
+        scenarios = importlib.import_module("sim_bridge.scenario")
+    except ModuleNotFoundError:
+        scenarios = None
+    if scenarios is not None:
+        scenarios.load_scenario(scenario)
+    if DemoPaths(out).recording.exists():
+        raise ConfigError(f"{DemoPaths(out).recording} already exists; choose another --out")
+    check_writable_dir(out, "--out folder")
 
-        raise ConfigError(f"{paths.recording} already exists; choose another --out")
-    paths.out.mkdir(parents=True, exist_ok=True)
+
+def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1) -> int:
+    """Run the graph until the episode ends; print where everything is, or what went wrong (exit 1)."""
+    check_inputs(scenario, duration_s, out, seed)
+    paths = DemoPaths(out)
     graph = demo_graph(paths, scenario, duration_s, seed)
-    paths.graph.write_text(config_lib.dump(graph))
+    try:
+        paths.graph.write_text(config_lib.dump(graph))
+    except OSError as err:
+        raise DataError(f"{paths.graph}: cannot write ({err.strerror})") from None
     print(f"demo: scenario {scenario}, {duration_s:g} s of simulated driving, results in {paths.out}", file=sys.stderr)
     start = time.monotonic()
-    code = Launcher(graph, output=sys.stderr).run()
+    launcher = Launcher(graph, output=sys.stderr)
+    launcher.run()
     print(f"demo: graph stopped after {time.monotonic() - start:.0f} s", file=sys.stderr)
-    if not paths.summary.is_file():
-        print("demo: the simulator wrote no episode summary (see the log above)", file=sys.stderr)
+    summary, problems = check_results(paths, launcher)
+    if problems:
+        for problem in problems:
+            print(f"demo: {problem}", file=sys.stderr)
+        print(f"demo: failed; what is in {paths.out} is incomplete", file=sys.stderr)
         return 1
-    summary = json.loads(paths.summary.read_text())
-    print(json.dumps({"episode": summary, "recording": str(paths.recording), "picture": str(paths.picture)}, indent=2))
-    return code
+    print(dumps_strict({"episode": summary, "recording": str(paths.recording), "picture": str(paths.picture)}))
+    return 0
+
+
+def check_results(paths: DemoPaths, launcher: Launcher) -> tuple[dict[str, Any] | None, list[str]]:
+    """The episode summary, and one line per thing that went wrong: a node that died, a damaged recording."""
+    from ssf_common.bags.reader import open_bag
+
+    problems = [f"{label} {failure}" for label, failure in launcher.failures]
+    failed = {label for label, _ in launcher.failures}
+    problems += [f"{label} crashed (exit code {code}) and was restarted" for label, code in launcher.crashes
+                 if label not in failed]
+    summary = None
+    if not paths.summary.is_file():
+        problems.append(f"the simulator wrote no episode summary to {paths.summary}")
+    else:
+        try:
+            summary = json.loads(paths.summary.read_text())
+        except (OSError, ValueError) as err:
+            problems.append(f"the episode summary {paths.summary} is unreadable ({type(err).__name__})")
+    try:
+        with open_bag(paths.recording) as bag:
+            info, topics = bag.info, bag.topics
+    except SsfError as err:
+        problems.append(f"the recording cannot be read: {err}")
+    else:
+        if info.damage:
+            problems.append(f"the recording is damaged: {'; '.join(info.damage)}")
+        empty = [name for name in RECORDED_TOPICS if not topics.get(name) or not topics[name].message_count]
+        if empty:
+            problems.append(f"the recording holds no {', '.join(empty)}")
+    return summary, problems

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ctypes
+import json
+import math
 import os
 import signal
 import subprocess
@@ -17,10 +19,26 @@ from typing import Any
 from pydantic import Field
 
 from ssf_common import config as config_lib
+from ssf_common.checks import require_finite
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
 
 _PR_SET_PDEATHSIG = 1
+CONFIG_ERROR_EXIT = 2  # a node's answer to bad parameters or files: restarting cannot help
+_STOPPED_CODES = (0, 130, -signal.SIGINT)  # how a process ends when it was asked to stop
+_PLAIN_TEXT = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-./~+= "
+# The child imports its entry point with SIGINT blocked (see _start_child), so that a Ctrl-C during the
+# imports ends it quietly with 130 instead of a KeyboardInterrupt traceback.
+_BOOTSTRAP = (
+    "import signal, sys\n"
+    "try:\n"
+    "    signal.pthread_sigmask(signal.SIG_UNBLOCK, {{signal.SIGINT}})\n"
+    "    from {module} import {func}\n"
+    "    code = {func}()\n"
+    "except KeyboardInterrupt:\n"
+    "    code = 130\n"
+    "sys.exit(code)\n"
+)
 
 
 class NodeSpec(Section):
@@ -60,7 +78,34 @@ def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> Gra
     graph = graph.model_copy(update={"nodes": nodes})
     if overrides:
         graph = graph.model_copy(update={"global_parameters": {**graph.global_parameters, **overrides}})
+    for index, node in enumerate(graph.nodes):
+        node_parameters(node, graph.global_parameters, f"{path}: nodes[{index}] ({node.name or node.executable})")
     return graph
+
+
+def node_parameters(node: NodeSpec, global_parameters: dict[str, Any], source: str = "graph") -> dict[str, Any]:
+    """The parameters one node gets, as the dotted names nodes declare: nested mappings flattened, its own
+    over the global ones; ConfigError (naming `source` and the parameter) for a value no -p can carry."""
+    merged = {**config_lib.flatten(global_parameters), **config_lib.flatten(node.parameters)}
+    for name, value in merged.items():
+        _check_parameter(name, value, source)
+    return merged
+
+
+def _check_parameter(name: str, value: Any, source: str) -> None:
+    items = value if isinstance(value, (list, tuple)) else [value]
+    for item in items:
+        if item is None or isinstance(item, (dict, list, tuple)) or not isinstance(item, (bool, int, float, str)):
+            raise ConfigError(f"{source}: parameter '{name}': {item!r} is not a parameter value "
+                              "(a number, bool, string, or a list of them)")
+        if isinstance(item, float) and not math.isfinite(item):
+            raise ConfigError(f"{source}: parameter '{name}' must be a finite number, got {item!r}")
+    try:
+        back_name, back = config_lib.parse_override(f"{name}:={param_text(value)}", source)
+    except ConfigError as err:
+        raise ConfigError(f"parameter '{name}': {err}") from None
+    if back_name != name or back != (list(value) if isinstance(value, tuple) else value):
+        raise ConfigError(f"{source}: parameter '{name}': {value!r} cannot be passed as -p {name}:=...")
 
 
 def _console_script(executable: str) -> tuple[str, str]:
@@ -75,7 +120,7 @@ def _console_script(executable: str) -> tuple[str, str]:
 def command_line(node: NodeSpec, global_parameters: dict[str, Any]) -> list[str]:
     """The argv that starts one node process, in ros2 run form."""
     module, func = _console_script(node.executable.split("/")[-1])
-    argv = [sys.executable, "-P", "-c", f"import sys; from {module} import {func}; sys.exit({func}())"]
+    argv = [sys.executable, "-P", "-c", _BOOTSTRAP.format(module=module, func=func)]
     argv += list(node.arguments)
     if not node.ros_args:
         return argv
@@ -86,21 +131,32 @@ def command_line(node: NodeSpec, global_parameters: dict[str, Any]) -> list[str]
         ros_args += ["-r", f"{source}:={target}"]
     if node.params_file:
         ros_args += ["--params-file", node.params_file]
-    for name, value in {**global_parameters, **node.parameters}.items():
-        ros_args += ["-p", f"{name}:={_param_text(value)}"]
+    for name, value in node_parameters(node, global_parameters, node.name or node.executable).items():
+        ros_args += ["-p", f"{name}:={param_text(value)}"]
     return argv + (["--ros-args", *ros_args] if ros_args else [])
 
 
-def _param_text(value: Any) -> str:
+def param_text(value: Any) -> str:
+    """The YAML text that reads back as `value` (what `-p NAME:=TEXT` carries)."""
     if isinstance(value, bool):
         return "true" if value else "false"
+    if isinstance(value, float):
+        text = repr(value)
+        mantissa, _, exponent = text.partition("e")
+        return f"{mantissa}.0e{exponent}" if exponent and "." not in mantissa else text
     if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_param_text(item) for item in value) + "]"
+        return "[" + ", ".join(param_text(item) for item in value) + "]"
+    if isinstance(value, str):
+        plain = value and value == value.strip() and all(char in _PLAIN_TEXT for char in value)
+        if plain and config_lib.load_yaml_text(value, "value") == value:
+            return value
+        return json.dumps(value)
     return str(value)
 
 
-def _die_with_parent() -> None:
-    """In the child: get SIGTERM if the launcher dies, so no node outlives it."""
+def _start_child() -> None:
+    """In the child, before exec: SIGTERM if the launcher dies (no orphans); SIGINT held until the bootstrap."""
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
     except OSError:
@@ -118,20 +174,27 @@ class ManagedProcess:
     restarts: int = 0
     finished: bool = False
     exit_codes: list[int] = field(default_factory=list)
+    failure: str | None = None  # why it ended for good, when that was not a clean end
 
 
 class Launcher:
-    """Runs a graph until interrupted or a required node ends; never leaves orphans."""
+    """Runs a graph until interrupted or a required node ends; never leaves orphans; says what failed."""
 
     def __init__(self, graph: GraphSpec, *, output: Any = None) -> None:
         self.graph = graph
         self.output = output or sys.stdout
         self._stopping = threading.Event()
         self._print_lock = threading.Lock()
+        self.crashes: list[tuple[str, int]] = []  # (label, exit code) of every unplanned end, restarted or not
         self.managed = [
             ManagedProcess(node, node.name or node.executable, command_line(node, graph.global_parameters))
             for node in graph.nodes
         ]
+
+    @property
+    def failures(self) -> list[tuple[str, str]]:
+        """(label, what happened) for each node that ended for good without a clean end."""
+        return [(managed.label, managed.failure) for managed in self.managed if managed.failure]
 
     def start(self) -> None:
         """Start every node process."""
@@ -147,7 +210,8 @@ class Launcher:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             env=env,
-            preexec_fn=_die_with_parent,
+            preexec_fn=_start_child,
+            process_group=0,  # a Ctrl-C in the terminal reaches the launcher only; it stops the nodes in order
         )
         self._say(managed.label, f"started (pid {managed.process.pid})")
         threading.Thread(target=self._pump, args=(managed, managed.process), daemon=True).start()
@@ -170,20 +234,36 @@ class Launcher:
             code = process.returncode
             managed.exit_codes.append(code)
             if self._stopping.is_set():
-                managed.finished = True
+                self._finish_stopped(managed, code)
                 continue
-            if code != 0 and managed.spec.respawn and managed.restarts < managed.spec.max_restarts:
+            if code != 0:
+                self.crashes.append((managed.label, code))
+            if code == CONFIG_ERROR_EXIT:
+                managed.finished = True
+                managed.failure = f"exited with code {code} (a configuration error)"
+                self._say(managed.label, f"{managed.failure}; not restarted")
+            elif code != 0 and managed.spec.respawn and managed.restarts < managed.spec.max_restarts:
                 managed.restarts += 1
                 self._say(managed.label, f"exited with code {code}; restart {managed.restarts}/{managed.spec.max_restarts}")
-                time.sleep(min(0.5 * managed.restarts, 2.0))
+                if self._stopping.wait(min(0.5 * managed.restarts, 2.0)):
+                    managed.finished = True
+                    continue
                 self._spawn(managed)
                 continue
-            managed.finished = True
-            reason = "finished" if code == 0 else f"exited with code {code}"
-            self._say(managed.label, f"{reason}; not restarted")
+            else:
+                managed.finished = True
+                managed.failure = None if code == 0 else f"exited with code {code}"
+                self._say(managed.label, "finished" if code == 0 else f"{managed.failure}; not restarted")
             if managed.spec.required:
                 return False
         return not all(managed.finished for managed in self.managed)
+
+    def _finish_stopped(self, managed: ManagedProcess, code: int) -> None:
+        managed.finished = True
+        if code == -signal.SIGKILL:
+            managed.failure = f"did not stop within {self.graph.stop_timeout_s:g} s and was killed"
+        elif code not in _STOPPED_CODES and code != -signal.SIGTERM:
+            managed.failure = f"exited with code {code} while stopping"
 
     def stop(self) -> None:
         """SIGINT every node, then SIGTERM, then SIGKILL after the timeout; wait for all."""
@@ -201,10 +281,17 @@ class Launcher:
                 break
         for managed in self.managed:
             if managed.process is not None:
-                managed.process.wait()
+                code = managed.process.wait()
+                if not managed.finished:
+                    managed.exit_codes.append(code)
+                    self._finish_stopped(managed, code)
 
     def run(self, duration_s: float | None = None) -> int:
-        """Start, supervise until Ctrl-C/SIGTERM, a required node's end or the duration; then stop all."""
+        """Start, supervise until Ctrl-C/SIGTERM, a required node's end or the duration; then stop all.
+
+        Returns 0 when every node ended cleanly, 1 when one failed (say which, one line each)."""
+        if duration_s is not None:
+            duration_s = require_finite(duration_s, "--duration", above=0.0)
         stop_requested = threading.Event()
 
         def on_signal(_signum: int, _frame: object) -> None:
@@ -217,10 +304,16 @@ class Launcher:
             while not stop_requested.is_set():
                 if not self.poll() or (deadline is not None and time.monotonic() >= deadline):
                     break
-                time.sleep(0.1)
+                stop_requested.wait(0.1)
         finally:
             self.stop()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-        failed = [m for m in self.managed if m.spec.required and m.exit_codes and m.exit_codes[-1] not in (0, -2)]
-        return 1 if failed else 0
+        for label, failure in self.failures:
+            self._say("launch", f"{label} {failure}")
+        return 1 if self.failures else 0
+
+
+def describe_failures(launcher: Launcher) -> str:
+    """The nodes that failed, on one line ('' when none did)."""
+    return "; ".join(f"{label} {failure}" for label, failure in launcher.failures)

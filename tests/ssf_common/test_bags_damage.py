@@ -174,7 +174,7 @@ def test_bag_info_on_garbage_is_one_line(tmp_path):
 @pytest.mark.parametrize(
     ("metadata", "fragment"),
     [
-        ("rosbag2_bagfile_information: [unclosed", "cannot read"),
+        ("rosbag2_bagfile_information: [unclosed", "not valid YAML at line 1"),
         ("something_else: 1", "rosbag2_bagfile_information"),
         ("rosbag2_bagfile_information:\n  version: 99\n  storage_identifier: mcap\n  relative_file_paths: [a.mcap]",
          "version 99"),

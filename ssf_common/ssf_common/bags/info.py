@@ -3,20 +3,22 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from datetime import datetime, timezone
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from ssf_common.bags.timeline import Timeline
     from ssf_common.bags.types import BagInfo
 
 EXIT_PROBLEM = 1
 
 
-def describe(info: BagInfo) -> str:
-    """Human-readable table of a bag."""
+def describe(info: BagInfo, timeline: Timeline | None = None) -> str:
+    """Human-readable table of a bag (start, end and duration of its plausible span when a timeline is given)."""
     label = 19
+    if timeline is not None and timeline.outside:
+        info = info._replace(start_ns=timeline.start_ns, end_ns=timeline.end_ns)
     lines = [
         f"{'Files:':<{label}}{_join(f.path.name for f in info.files)}",
         f"{'Bag size:':<{label}}{_size(sum(f.size_bytes for f in info.files))}",
@@ -39,13 +41,18 @@ def describe(info: BagInfo) -> str:
         lines.append("Topic information: (none)")
     for index, damage in enumerate(info.damage):
         lines.append(f"{'Damaged:' if index == 0 else '':<{label}}{damage}")
+    notes = [timeline.problem(), timeline.order_note()] if timeline is not None else []
+    for index, note in enumerate(note for note in notes if note):
+        lines.append(f"{'Timestamps:' if index == 0 else '':<{label}}{note}")
     return "\n".join(lines)
 
 
-def to_json(info: BagInfo) -> dict[str, Any]:
+def to_json(info: BagInfo, timeline: Timeline | None = None) -> dict[str, Any]:
     """The same facts as a JSON-ready mapping."""
     from ssf_common.bags.qos import profiles_to_dicts
 
+    if timeline is not None and timeline.outside:
+        info = info._replace(start_ns=timeline.start_ns, end_ns=timeline.end_ns)
     return {
         "path": str(info.path),
         "storage_identifier": info.storage,
@@ -81,20 +88,30 @@ def to_json(info: BagInfo) -> dict[str, Any]:
             for t in info.topics
         ],
         "damage": list(info.damage),
+        "timestamps": {
+            "outside_span": timeline.outside if timeline else 0,
+            "negative": timeline.negative if timeline else 0,
+            "out_of_order": timeline.out_of_order if timeline else 0,
+            "problem": timeline.problem() if timeline else None,
+        },
     }
 
 
 def run_info(args: argparse.Namespace) -> int:
-    """Print what the bag holds; exit 1 with one warning line when it is damaged or holds unknown types."""
+    """Print what the bag holds; exit 1 with one warning line when it is damaged, holds unknown types or
+    messages with implausible timestamps."""
     from ssf_common.bags.reader import open_bag
+    from ssf_common.jsonio import dumps_strict
 
     with open_bag(args.path) as bag:
-        info = bag.info
+        info, timeline = bag.info, bag.timeline
         unknown = sorted(f"{t.name} ({t.type_name or 'no type'})" for t in info.topics if t.type_name in bag.unknown_types)
-    print(json.dumps(to_json(info), indent=2) if args.json else describe(info))
+    print(dumps_strict(to_json(info, timeline)) if args.json else describe(info, timeline))
     problems = [f"damaged, {info.message_count} messages readable: {'; '.join(info.damage)}"] if info.damage else []
     if unknown:
         problems.append(f"types unknown and not embedded, messages cannot be decoded: {', '.join(unknown)}")
+    if timeline.problem():
+        problems.append(f"{timeline.problem()}; bag play skips them")
     if problems:
         print(f"ssf: warning: {args.path}: {' / '.join(problems)}", file=sys.stderr)
         return EXIT_PROBLEM

@@ -10,7 +10,8 @@ import time
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-from ssf_common.errors import BagError, ConfigError
+from ssf_common.checks import require_finite
+from ssf_common.errors import BagError
 
 if TYPE_CHECKING:
     from ssf_common.bags.qos import Qos
@@ -36,6 +37,7 @@ class PlayStats(NamedTuple):
     messages: int
     clock_ticks: int
     passes: int
+    skipped: int = 0  # messages stamped outside the recording's span (per pass)
 
 
 class Pacer:
@@ -84,7 +86,14 @@ def publisher_qos(profiles: tuple[Qos, ...]) -> Any:
 class Player:
     """Publishes a bag's messages at their recorded pace (scaled by the rate), with /clock if asked."""
 
-    def __init__(self, bag: BagReader, options: PlayOptions, node: Any, stop: threading.Event) -> None:
+    def __init__(
+        self,
+        bag: BagReader,
+        options: PlayOptions,
+        node: Any,
+        stop: threading.Event,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         from ssf_common import messages
 
         self._messages = messages
@@ -99,9 +108,10 @@ class Player:
         self.clock_publisher = _clock_publisher(node) if options.clock else None
         self._clock_type = messages.msg_type("rosgraph_msgs/msg/Clock")
         self._stop = stop
-        self._pacer = Pacer(options.rate, stop)
+        self._pacer = Pacer(options.rate, stop, clock)
         self._next_tick_ns = 0
-        self.sent = self.ticks = self.passes = 0
+        self.timeline = bag.timeline
+        self.sent = self.ticks = self.passes = self.skipped = 0
 
     def run(self) -> PlayStats:
         """Wait the start delay, then play once (or until stopped, with loop)."""
@@ -117,12 +127,16 @@ class Player:
     @property
     def stats(self) -> PlayStats:
         """What was played so far."""
-        return PlayStats(self.sent, self.ticks, self.passes)
+        return PlayStats(self.sent, self.ticks, self.passes, self.skipped)
 
     def _play_pass(self) -> bool:
-        """One pass over the bag; False if it held nothing to play."""
+        """One pass over the bag, skipping stamps outside the recording's span; False if it played nothing."""
         played_any = False
+        self.skipped = 0
         for message in self.bag.messages(self.topics):
+            if not self.timeline.contains(message.timestamp_ns):
+                self.skipped += 1
+                continue
             if not played_any:
                 self._pacer.restart(message.timestamp_ns)
                 self._next_tick_ns = message.timestamp_ns
@@ -152,23 +166,21 @@ def run_play(args: argparse.Namespace) -> int:
     from ssf_common.bags.reader import open_bag
     from ssf_common.middleware import Node, shutdown
 
-    if not args.rate > 0:
-        raise ConfigError(f"--rate must be positive, got {args.rate}")
-    if args.delay < 0:
-        raise ConfigError(f"--delay must not be negative, got {args.delay}")
     options = PlayOptions(
-        rate=args.rate,
+        rate=require_finite(args.rate, "--rate", above=0.0),
         loop=args.loop,
         clock=args.clock,
         topics=tuple(args.topics) if args.topics else None,
-        delay_s=args.delay,
+        delay_s=require_finite(args.delay, "--delay", at_least=0.0),
     )
     stop = threading.Event()
     with open_bag(args.path) as bag:
-        info = bag.info
+        info, timeline = bag.info, bag.timeline
         if info.damage:
             print(f"ssf: warning: damaged bag, playing the {info.message_count} readable messages:"
                   f" {'; '.join(info.damage)}", file=sys.stderr)
+        if timeline.problem():
+            print(f"ssf: warning: {args.path}: {timeline.problem()}; skipping them", file=sys.stderr)
         node = Node("ssf_bag_player", argv=["--ros-args", *args.ros_args] if args.ros_args else [])
         previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
@@ -178,9 +190,10 @@ def run_play(args: argparse.Namespace) -> int:
                 signal.signal(sig, handler)
             node.destroy_node()
             shutdown()
-    print(f"played {stats.messages} messages in {stats.passes} pass(es), {stats.clock_ticks} /clock ticks",
+    skipped = f", skipped {stats.skipped} with implausible timestamps" if stats.skipped else ""
+    print(f"played {stats.messages} messages in {stats.passes} pass(es), {stats.clock_ticks} /clock ticks{skipped}",
           file=sys.stderr)
-    return 1 if info.damage else 0
+    return 1 if info.damage or stats.skipped else 0
 
 
 def add_parser(bag_commands: argparse._SubParsersAction) -> None:

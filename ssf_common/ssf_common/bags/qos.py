@@ -15,7 +15,8 @@ from rosbags.interfaces import (
     QosTime,
 )
 
-from ssf_common.errors import BagError
+from ssf_common.config import load_yaml_text
+from ssf_common.errors import BagError, ConfigError
 
 __all__ = ["Qos", "parse_profiles", "profiles_to_dicts", "profiles_to_yaml", "default_profile"]
 
@@ -43,9 +44,9 @@ def parse_profiles(value: Any, where: str) -> tuple[Qos, ...]:
         return ()
     if isinstance(value, str):
         try:
-            value = yaml.safe_load(value)
-        except yaml.YAMLError:
-            raise BagError(f"{where}: offered_qos_profiles is not valid YAML") from None
+            value = load_yaml_text(value, f"{where}: offered_qos_profiles")
+        except ConfigError as err:
+            raise BagError(str(err)) from None
     if not isinstance(value, list):
         raise BagError(f"{where}: offered_qos_profiles must be a list, got {type(value).__name__}")
     try:

@@ -7,19 +7,22 @@ file. Types the project's store does not know are registered from the definition
 
 from __future__ import annotations
 
+import functools
 import re
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any, NamedTuple, Protocol
 
-import yaml
+import numpy as np
 
 from ssf_common import messages
+from ssf_common.config import read_yaml_document
 from ssf_common.bags.qos import parse_profiles
 from ssf_common.bags.storage_mcap import MCAP_MAGIC, McapFile, merge_by_time
 from ssf_common.bags.storage_sqlite3 import SQLITE_MAGIC, Sqlite3File
+from ssf_common.bags.timeline import Timeline, judge
 from ssf_common.bags.types import BagInfo, BagMessage, FileInfo, TopicInfo, TypeDefinition
-from ssf_common.errors import BagError, MessageError
+from ssf_common.errors import BagError, ConfigError, MessageError
 
 METADATA_FILE = "metadata.yaml"
 MAX_METADATA_VERSION = 9
@@ -44,6 +47,8 @@ class StorageFile(Protocol):
 
     def messages(self, topics: frozenset[str] | None = None) -> Iterator[BagMessage]: ...
 
+    def timestamps(self) -> np.ndarray: ...
+
     def close(self) -> None: ...
 
 
@@ -67,9 +72,9 @@ class BagMetadata(NamedTuple):
 def read_metadata(path: Path) -> BagMetadata:
     """Parse a rosbag2 metadata.yaml, naming the first problem in one line."""
     try:
-        document = yaml.safe_load(path.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise BagError(f"{path}: cannot read ({type(err).__name__})") from None
+        document = read_yaml_document(path)
+    except ConfigError as err:
+        raise BagError(str(err)) from None
     info = document.get("rosbag2_bagfile_information") if isinstance(document, dict) else None
     if not isinstance(info, dict):
         raise BagError(f"{path}: no 'rosbag2_bagfile_information' mapping")
@@ -156,6 +161,11 @@ class BagReader:
             compression_mode=meta.compression_mode if meta else "",
             custom_data=meta.custom_data if meta else (),
         )
+
+    @functools.cached_property
+    def timeline(self) -> Timeline:
+        """The span the recording covers and the messages stamped outside it (read from indexes, not data)."""
+        return judge([f.timestamps() for f in self._files if f.message_count])
 
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
         """Every message (or those of `topics`) in receive-time order across all files."""

@@ -11,10 +11,11 @@ from io import BytesIO
 from pathlib import Path
 from typing import BinaryIO, NamedTuple, TypeVar
 
+import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import Channel, Chunk, Message, Schema
+from mcap.records import Channel, Chunk, ChunkIndex, Message, MessageIndex, Schema
 from mcap.stream_reader import breakup_chunk
 
 from ssf_common.bags.qos import parse_profiles
@@ -23,6 +24,7 @@ from ssf_common.errors import BagError
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 _RECORD_HEAD = struct.Struct("<BQ")
+_INT64_MAX = 2**63 - 1
 
 T = TypeVar("T")
 
@@ -51,6 +53,8 @@ class McapFile:
             self._channels: dict[int, Channel] = {}
             self._counts: Counter[int] = Counter()
             self._spans: list[_Span] = []
+            self._chunk_indexes: list[ChunkIndex] = []
+            self._scanned_times: list[int] | None = None
             self.start_ns = 0
             self.end_ns = 0
             if not self._read_summary():
@@ -101,6 +105,42 @@ class McapFile:
         sources = [(span.start_ns, self._span_reader(span, wanted)) for span in self._spans]
         return merge_by_time(sources, key=lambda message: message.timestamp_ns)
 
+    def timestamps(self) -> np.ndarray:
+        """Every readable message's log time (int64 ns; beyond int64 clipped) in the order they are stored."""
+        times = self._scanned_times if self._scanned_times is not None else self._indexed_times()
+        return np.array(times, dtype=np.uint64).clip(max=_INT64_MAX).astype(np.int64)
+
+    def _indexed_times(self) -> list[int]:
+        """Log times from the message indexes after each chunk (the chunk itself when it has none)."""
+        times: list[int] = []
+        for index in self._chunk_indexes:
+            try:
+                times.extend(self._chunk_times(index))
+            except Exception as err:  # noqa: BLE001 - corrupt bytes raise many kinds
+                raise BagError(f"{self.path}: message index of the chunk at byte {index.chunk_start_offset} is "
+                               f"corrupt ({_describe(err)})") from None
+        return times
+
+    def _chunk_times(self, index: ChunkIndex) -> list[int]:
+        if not index.message_index_offsets:
+            record = self._read_record(index.chunk_start_offset)
+            if record is None:
+                raise ValueError("chunk cut off")
+            records = breakup_chunk(Chunk.read(ReadDataStream(BytesIO(record[1]))), validate_crc=True)
+            return [r.log_time for r in records if isinstance(r, Message)]
+        start = index.chunk_start_offset + index.chunk_length
+        self._stream.seek(start)
+        data = self._stream.read(index.message_index_length)
+        entries: list[tuple[int, int]] = []
+        position = 0
+        while position + _RECORD_HEAD.size <= len(data):
+            opcode, length = _RECORD_HEAD.unpack_from(data, position)
+            body = data[position + _RECORD_HEAD.size : position + _RECORD_HEAD.size + length]
+            if opcode == Opcode.MESSAGE_INDEX:
+                entries += MessageIndex.read(ReadDataStream(BytesIO(body))).records
+            position += _RECORD_HEAD.size + length
+        return [log_time for log_time, _ in sorted(entries, key=lambda entry: entry[1])]
+
     # reading
 
     def _type_name(self, channel: Channel) -> str:
@@ -127,6 +167,7 @@ class McapFile:
         self._channels = dict(summary.channels)
         self._counts = Counter(stats.channel_message_counts)
         self._spans = sorted(_Span(i.message_start_time, i.chunk_start_offset) for i in summary.chunk_indexes)
+        self._chunk_indexes = sorted(summary.chunk_indexes, key=lambda index: index.chunk_start_offset)
         if stats.message_count:
             self.start_ns, self.end_ns = stats.message_start_time, stats.message_end_time
         return True
@@ -135,6 +176,7 @@ class McapFile:
         """Walk the records from the start, stopping at the first truncated or corrupt one."""
         position = len(MCAP_MAGIC)
         times: list[int] = []
+        self._scanned_times = []
         while True:
             record = self._read_record(position)
             if record is None:
@@ -167,11 +209,13 @@ class McapFile:
             if messages:
                 self._spans.append(_Span(min(m.log_time for m in messages), position))
                 times.extend((min(m.log_time for m in messages), max(m.log_time for m in messages)))
+                self._scanned_times.extend(m.log_time for m in messages)
         elif opcode == Opcode.MESSAGE:
             message = Message.read(stream, len(body))
             self._remember(message)
             self._spans.append(_Span(message.log_time, position))
             times.append(message.log_time)
+            self._scanned_times.append(message.log_time)
         elif opcode == Opcode.SCHEMA:
             self._remember(Schema.read(stream))
         elif opcode == Opcode.CHANNEL:

@@ -52,7 +52,9 @@ def shutdown() -> None:
 
 
 def run(node_factory: Callable[..., Node], argv: Sequence[str] | None = None) -> int:
-    """Console-script body of a node: build it, spin until SIGINT/SIGTERM, shut down cleanly."""
+    """Console-script body of a node: build it, spin until SIGINT/SIGTERM, shut down cleanly.
+
+    Exit status: 2 when the node could not be built (bad parameters or files), else the node's `exit_code`."""
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         node = node_factory(argv=args)
@@ -84,4 +86,4 @@ def run(node_factory: Callable[..., Node], argv: Sequence[str] | None = None) ->
             shutdown()
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-    return 0
+    return int(getattr(node, "exit_code", 0))  # a node sets exit_code when its work failed after it started

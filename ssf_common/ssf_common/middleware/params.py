@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import fnmatch
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import yaml
-
-from ssf_common.config import read_yaml
+from ssf_common.config import flatten, parse_override, read_yaml
 from ssf_common.errors import ConfigError
 
 
@@ -23,14 +22,6 @@ class RosArgs:
     namespace: str | None = None
     params_files: list[Path] = field(default_factory=list)
     unparsed: list[str] = field(default_factory=list)
-
-
-def parse_value(text: str) -> Any:
-    """Interpret a parameter value the way ROS 2 does (YAML scalar or list)."""
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError:
-        return text
 
 
 def parse_ros_args(argv: list[str], node_name: str) -> RosArgs:
@@ -50,8 +41,11 @@ def parse_ros_args(argv: list[str], node_name: str) -> RosArgs:
         if arg == "--":
             inside = False
         elif arg in ("-p", "--param"):
-            name, value = _split_assignment(next(items, None), arg)
-            cli_params[name] = parse_value(value)
+            text = next(items, None)
+            if text is None:
+                raise ConfigError(f"{arg} expects NAME:=VALUE, got nothing")
+            name, value = parse_override(text, arg)
+            cli_params.update(flatten({name: value}) if isinstance(value, dict) else {name: value})
         elif arg == "--params-file":
             path = next(items, None)
             if path is None:
@@ -98,18 +92,8 @@ def read_params_file(path: Path, node_name: str) -> dict[str, Any]:
         values = section["ros__parameters"]
         if not isinstance(values, dict):
             raise ConfigError(f"{path}: '{pattern}.ros__parameters' must be a mapping")
-        params.update(_flatten_params(values))
+        params.update(flatten(values))
     return params
-
-
-def _flatten_params(values: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    flat: dict[str, Any] = {}
-    for key, value in values.items():
-        if isinstance(value, dict):
-            flat.update(_flatten_params(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
 
 
 @dataclass(frozen=True)
@@ -128,6 +112,8 @@ def coerce(name: str, value: Any, default: Any) -> Any:
         if isinstance(value, bool):
             return value
     elif isinstance(default, float) and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise ConfigError(f"parameter '{name}' must be a finite number, got {value!r}")
         return float(value)
     elif isinstance(default, int) and isinstance(value, int) and not isinstance(value, bool):
         return value
