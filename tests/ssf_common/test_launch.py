@@ -7,7 +7,7 @@ import re
 import signal
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 import pytest
@@ -16,6 +16,7 @@ import yaml
 from ssf_common.launch import command_line, load_graph
 from ssf_common.middleware import Node
 from ssf_common.errors import ConfigError
+from support import wait_until
 
 # executable -> (input topic it subscribes to, its type)
 SHELL_NODES = {
@@ -54,10 +55,7 @@ def test_each_executable_joins_the_graph_and_stops_on_sigint(executable):
     probe = Node("probe")
     try:
         publisher = probe.create_publisher(type_name, topic)
-        deadline = time.monotonic() + 30
-        while publisher.get_subscription_count() == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        assert publisher.get_subscription_count() == 1, f"{executable} never subscribed to {topic}"
+        assert wait_until(lambda: publisher.get_subscription_count() == 1, timeout_s=30), f"{executable} never subscribed"
         process.send_signal(signal.SIGINT)
         output, _ = process.communicate(timeout=20)
         assert process.returncode == 0, output
@@ -76,65 +74,190 @@ def test_a_bad_parameter_exits_with_one_line():
     assert "report_period_s" in output and "Traceback" not in output
 
 
-def write_graph(tmp_path: Path, nodes: list[dict]) -> Path:
+def write_graph(tmp_path: Path, nodes: list[dict], **graph) -> Path:
     path = tmp_path / "graph.yaml"
-    path.write_text(yaml.safe_dump({"nodes": nodes, "stop_timeout_s": 5.0}))
+    path.write_text(yaml.safe_dump({"nodes": nodes, "stop_timeout_s": 5.0, **graph}))
     return path
 
 
-def test_launch_prefixes_restarts_and_stops_everything(tmp_path):
-    graph = write_graph(
-        tmp_path,
-        [
-            {"executable": "ssf_seg_node", "name": "seg", "parameters": {"report_period_s": 0.5}},
-            {"executable": "ssf_odom_node", "name": "odom"},
-            {"executable": "ssf_planner_node", "name": "crasher", "parameters": {"report_period_s": "never"}, "max_restarts": 1},
-        ],
-    )
-    launcher = subprocess.Popen(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "launch", str(graph)],
+class Output:
+    """Collects a process's output lines on a thread, so a test waits on what was said, not on readline()."""
+
+    def __init__(self, process: subprocess.Popen) -> None:
+        self.lines: list[str] = []
+        self._thread = threading.Thread(target=self._read, args=(process.stdout,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream) -> None:
+        for line in stream:
+            self.lines.append(line)
+
+    def has(self, fragment: str) -> bool:
+        return any(fragment in line for line in list(self.lines))
+
+    def text(self) -> str:
+        self._thread.join(timeout=30)
+        return "".join(self.lines)
+
+
+def launch(graph: Path, *args: str) -> tuple[subprocess.Popen, Output]:
+    process = subprocess.Popen(
+        [sys.executable, "-P", "-m", "ssf_common.cli", "launch", str(graph), *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
     )
-    lines: list[str] = []
-    deadline = time.monotonic() + 60
-    assert launcher.stdout is not None
-    while time.monotonic() < deadline:
-        line = launcher.stdout.readline()
-        lines.append(line)
-        if "[seg]" in line and "segmented 0 flows" in line and any("not restarted" in l for l in lines):
-            break
-    launcher.send_signal(signal.SIGINT)
-    rest, _ = launcher.communicate(timeout=30)
-    output = "".join(lines) + rest
-    assert launcher.returncode == 0, output
-    assert "[crasher] exited with code 2; restart 1/1" in output
-    assert "[crasher] exited with code 2; not restarted" in output
-    assert re.search(r"\[seg\] \[INFO\] .*\[seg\]: segmented 0 flows", output)
-    pids = [int(pid) for pid in re.findall(r"started \(pid (\d+)\)", output)]
-    assert len(pids) == 4  # seg, odom, crasher twice
+    return process, Output(process)
+
+
+def damaged_bag(tmp_path: Path) -> Path:
+    """An MCAP file cut in half: `ssf bag info` reads what it can and exits 1."""
+    from ssf_common import messages
+    from ssf_common.bags.writer import BagWriter, BagWriterConfig
+
+    string = messages.msg_type("std_msgs/msg/String")
+    with BagWriter(tmp_path / "bag", BagWriterConfig(chunk_bytes=1024)) as writer:
+        writer.add_topic("/chatter", "std_msgs/msg/String")
+        for i in range(200):
+            writer.write("/chatter", messages.serialize(string(data=f"message {i}")), 1000 + i)
+    (path,) = (tmp_path / "bag").glob("*.mcap")
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(path.read_bytes()[: path.stat().st_size // 2])
+    return cut
+
+
+def test_launch_restarts_crashes_not_configuration_errors_and_exits_non_zero(tmp_path):
+    graph = write_graph(
+        tmp_path,
+        [
+            {"executable": "ssf_seg_node", "name": "seg", "parameters": {"report_period_s": 0.5}},
+            {"executable": "ssf", "name": "crasher", "ros_args": False, "max_restarts": 1,
+             "arguments": ["bag", "info", str(damaged_bag(tmp_path))]},
+            {"executable": "ssf_planner_node", "name": "misconfigured", "parameters": {"report_period_s": "never"}},
+        ],
+    )
+    launcher, output = launch(graph)
+    try:
+        assert wait_until(
+            lambda: output.has("[crasher] exited with code 1; not restarted")
+            and output.has("[misconfigured] exited with code 2 (a configuration error); not restarted")
+            and output.has("segmented 0 flows"),
+            timeout_s=90,
+        ), "".join(output.lines)
+    finally:
+        launcher.send_signal(signal.SIGINT)
+        launcher.wait(timeout=60)
+    text = output.text()
+    assert launcher.returncode == 1, text
+    assert "[crasher] exited with code 1; restart 1/1" in text
+    assert "[misconfigured] exited with code 2 (a configuration error); restart" not in text
+    assert re.search(r"\[seg\] \[INFO\] .*\[seg\]: segmented 0 flows", text)
+    assert "[launch] crasher exited with code 1" in text
+    assert "[launch] misconfigured exited with code 2 (a configuration error)" in text
+    assert "[launch] seg" not in text  # it stopped cleanly
+    pids = [int(pid) for pid in re.findall(r"started \(pid (\d+)\)", text)]
+    assert len(pids) == 4  # seg, crasher twice, misconfigured once
     assert not any(alive(pid) for pid in pids)
+
+
+def python_started(pid: int) -> bool:
+    """Whether the interpreter in `pid` runs Python code yet (it has installed its SIGINT handler)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except FileNotFoundError:
+        return False
+    caught = int(re.search(r"SigCgt:\s*([0-9a-f]+)", status).group(1), 16)
+    return bool(caught & (1 << (signal.SIGINT - 1)))
+
+
+def test_ctrl_c_right_after_start_stops_every_node_without_a_traceback(tmp_path):
+    graph = write_graph(tmp_path, [{"executable": "ssf_seg_node", "name": "seg"}, {"executable": "ssf_odom_node", "name": "odom"}])
+    launcher, output = launch(graph)
+    assert wait_until(lambda: output.has("[odom] started (pid"), timeout_s=60)
+    pids = [int(pid) for pid in re.findall(r"started \(pid (\d+)\)", "".join(output.lines))]
+    assert wait_until(lambda: all(python_started(pid) for pid in pids), timeout_s=30)
+    launcher.send_signal(signal.SIGINT)  # the nodes are importing their packages: no node has started yet
+    assert not output.has("started (dds backend)")
+    launcher.wait(timeout=60)
+    text = output.text()
+    assert launcher.returncode == 0, text
+    assert "Traceback" not in text and "KeyboardInterrupt" not in text
 
 
 def test_killed_launcher_leaves_no_orphans(tmp_path):
     graph = write_graph(tmp_path, [{"executable": "ssf_seg_node", "name": "seg"}, {"executable": "ssf_odom_node", "name": "odom"}])
-    launcher = subprocess.Popen(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "launch", str(graph)], stdout=subprocess.PIPE, text=True
-    )
-    assert launcher.stdout is not None
-    pids: list[int] = []
-    deadline = time.monotonic() + 30
-    while len(pids) < 2 and time.monotonic() < deadline:
-        match = re.search(r"started \(pid (\d+)\)", launcher.stdout.readline())
-        if match:
-            pids.append(int(match.group(1)))
+    launcher, output = launch(graph)
+    assert wait_until(lambda: len(re.findall(r"started \(pid (\d+)\)", "".join(output.lines))) == 2, timeout_s=30)
+    pids = [int(pid) for pid in re.findall(r"started \(pid (\d+)\)", "".join(output.lines))]
     os.kill(launcher.pid, signal.SIGKILL)
     launcher.wait(timeout=10)
-    deadline = time.monotonic() + 20
-    while any(alive(pid) for pid in pids) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert len(pids) == 2 and not any(alive(pid) for pid in pids)
+    assert wait_until(lambda: not any(alive(pid) for pid in pids), timeout_s=20)
+
+
+@pytest.mark.parametrize("duration", ["-1", "0", "nan", "inf"])
+def test_launch_duration_must_be_a_positive_number(tmp_path, capsys, duration):
+    from ssf_common.cli import main
+
+    graph = write_graph(tmp_path, [{"executable": "ssf_seg_node"}])
+    assert main(["launch", str(graph), "--duration", duration]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("ssf: error: --duration must be")
+
+
+def test_launch_param_overrides_use_the_one_syntax(tmp_path, capsys):
+    from ssf_common.cli import main
+
+    graph = write_graph(tmp_path, [{"executable": "ssf_seg_node"}])
+    assert load_graph(graph, {"report_period_s": 2.0}).global_parameters == {"report_period_s": 2.0}
+    assert main(["launch", str(graph), "-p", "report_period_s:=[1,"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("ssf: error: -p report_period_s: not valid YAML")
+
+
+def test_nested_graph_parameters_reach_the_node_as_dotted_names(tmp_path):
+    from pydantic import Field
+
+    from ssf_common.config import Section
+
+    class Lidar(Section):
+        rows: int = Field(64, gt=0)
+        range_m: float = 100.0
+
+    class Sensor(Section):
+        lidar: Lidar = Lidar()
+        frame_id: str = "lidar"
+
+    graph = load_graph(write_graph(
+        tmp_path,
+        [{"executable": "ssf_seg_node", "parameters": {"lidar": {"rows": 32}, "frame_id": "it's: here"}}],
+        global_parameters={"lidar": {"range_m": 1e30, "rows": 8}},
+    ))
+    argv = command_line(graph.nodes[0], graph.global_parameters)
+    ros_args = argv[argv.index("--ros-args"):]
+    assert ros_args[ros_args.index("lidar.rows:=32") - 1] == "-p"
+    node = Node("configured", argv=ros_args)
+    try:
+        config = node.declare_config(Sensor)
+    finally:
+        node.destroy_node()
+    assert config == Sensor(lidar=Lidar(rows=32, range_m=1e30), frame_id="it's: here")
+
+
+@pytest.mark.parametrize(
+    ("parameters", "fragment"),
+    [
+        ({"rate": float("nan")}, "parameter 'rate' must be a finite number"),
+        ({"points": [{"x": 1}]}, "parameter 'points': {'x': 1} is not a parameter value"),
+        ({"empty": None}, "parameter 'empty': None is not a parameter value"),
+        ({"bad name": 1}, "is not a parameter name"),
+    ],
+)
+def test_graph_parameters_no_node_can_take_are_refused_with_the_file_and_name(tmp_path, parameters, fragment):
+    path = tmp_path / "graph.yaml"
+    path.write_text(yaml.safe_dump({"nodes": [{"executable": "ssf_seg_node", "parameters": parameters}]}))
+    with pytest.raises(ConfigError) as caught:
+        load_graph(path)
+    assert fragment in str(caught.value) and "graph.yaml" in str(caught.value)
 
 
 @pytest.mark.parametrize(

@@ -240,3 +240,88 @@ def test_broken_scan_files_give_one_line(tmp_path, name, content, problem):
 def test_missing_file_is_named(tmp_path):
     with pytest.raises(DataError, match="missing.pcd: no such file"):
         scans.read_scan(tmp_path / "missing.pcd")
+
+
+@pytest.mark.parametrize(
+    ("real", "renamed", "fragment"),
+    [
+        ("scan.pcd", "scan.bin", "the content is a .pcd file, not .bin; rename it to scan.pcd"),
+        ("scan.npy", "scan.bin", "the content is a .npy file, not .bin; rename it to scan.npy"),
+        ("scan.ply", "scan.pcd", "the content is a .ply file, not .pcd; rename it to scan.ply"),
+        ("scan.pcd", "scan.npy", "the content is a .pcd file, not .npy"),
+    ],
+)
+def test_a_file_renamed_to_another_format_is_refused(tmp_path, real, renamed, fragment):
+    xyz = np.random.default_rng(2).normal(size=(64, 3)).astype(np.float32)
+    if real.endswith(".pcd"):
+        scans.write_pcd(tmp_path / real, xyz, encoding="binary")
+    elif real.endswith(".npy"):
+        np.save(tmp_path / real, xyz)
+    else:
+        (tmp_path / real).write_bytes(ply("binary_little_endian", xyz.tobytes()))
+    (tmp_path / real).rename(tmp_path / renamed)
+    with pytest.raises(DataError) as caught:
+        scans.read_scan(tmp_path / renamed)
+    assert fragment in str(caught.value)
+
+
+def test_text_named_bin_is_refused_rather_than_read_as_floats(tmp_path):
+    path = tmp_path / "000000.bin"
+    path.write_bytes(b"1.0 2.0 3.0 0.5\n" * 64)  # 1024 bytes: a whole number of 16-byte "points"
+    with pytest.raises(DataError, match="the content is text, not KITTI .bin float32 points"):
+        scans.read_scan(path)
+
+
+def test_implausible_coordinates_are_dropped_and_counted(tmp_path):
+    xyzi = np.array(
+        [[1, 2, 3, 0.1], [1e30, 0, 0, 0.2], [np.nan, 0, 0, 0.3], [4, -999.5, 6, 0.4], [0, 0, -1000.5, 0.5]],
+        dtype=np.float32,
+    )
+    scans.write_bin(tmp_path / "mixed.bin", xyzi)
+    warnings: list[str] = []
+    kept = scans.read_scan(tmp_path / "mixed.bin", warn=warnings.append)
+    np.testing.assert_array_equal(kept, xyzi[[0, 3]])
+    assert warnings == [f"{tmp_path / 'mixed.bin'}: dropped 3 of 5 points (1 with non-finite x/y/z, 2 beyond 1000 m)"]
+    loaded = scans.load_scan(tmp_path / "mixed.bin", max_coordinate=1e31)
+    assert (loaded.total, loaded.non_finite, loaded.too_far, len(loaded.points)) == (5, 1, 0, 4)
+    assert scans.load_scan(tmp_path / "mixed.bin", max_coordinate=1000.5).too_far == 1
+    with pytest.raises(DataError, match="max_coordinate must be a positive number"):
+        scans.load_scan(tmp_path / "mixed.bin", max_coordinate=float("nan"))
+
+
+def test_a_scan_of_far_points_only_is_an_error_not_a_scan(tmp_path):
+    scans.write_pcd(tmp_path / "far.pcd", np.full((10, 3), 1e30, np.float32))
+    with pytest.raises(DataError, match=r"far.pcd: no point with finite x, y, z within 1000 m \(10 points"):
+        scans.read_scan(tmp_path / "far.pcd")
+    np.save(tmp_path / "far64.npy", np.full((3, 3), 1e300))  # beyond float32 as well
+    with pytest.raises(DataError, match="within 1000 m"):
+        scans.read_scan(tmp_path / "far64.npy")
+
+
+def test_fields_that_are_not_numbers_are_refused(tmp_path):
+    np.save(tmp_path / "strings.npy", np.array([["1", "2", "3"]]))
+    with pytest.raises(DataError, match="expected a numeric N×3 or N×4 array, got <U1"):
+        scans.read_scan(tmp_path / "strings.npy")
+    np.save(tmp_path / "named.npy", np.zeros(2, dtype=[("x", "U3"), ("y", "f4"), ("z", "f4")]))
+    with pytest.raises(DataError, match="field 'x' holds <U3 values; expected numbers"):
+        scans.read_scan(tmp_path / "named.npy")
+
+
+def test_headers_that_promise_more_than_the_file_holds(tmp_path):
+    huge_ascii = b"ply\nformat ascii 1.0\nelement vertex 99999999999999999999999\nproperty float x\nend_header\n1\n"
+    (tmp_path / "huge.ply").write_bytes(huge_ascii)
+    with pytest.raises(DataError, match="truncated: 2 lines of ASCII data"):
+        scans.read_points(tmp_path / "huge.ply")
+    twice = PLY_ASCII_VERTEX + b"property float x\nproperty float x\nend_header\n1 2\n"
+    (tmp_path / "twice.ply").write_bytes(twice)
+    with pytest.raises(DataError, match="repeats a property name"):
+        scans.read_points(tmp_path / "twice.ply")
+    raw = write_pcd_bytes(tmp_path, "binary_compressed")
+    head, body = raw.split(b"DATA binary_compressed\n")
+    compressed = struct.unpack("<I", body[:4])[0]
+    (tmp_path / "bomb.pcd").write_bytes(
+        head.replace(b"POINTS 50", b"POINTS 5000000").replace(b"WIDTH 50", b"WIDTH 5000000")
+        + b"DATA binary_compressed\n" + struct.pack("<II", compressed, 5000000 * ALL_PCD_TYPES.itemsize) + body[8:]
+    )
+    with pytest.raises(DataError, match="LZF cannot do that"):
+        scans.read_points(tmp_path / "bomb.pcd")
