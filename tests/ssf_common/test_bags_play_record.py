@@ -3,7 +3,7 @@
 import signal
 import subprocess
 import sys
-import time
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +14,8 @@ from ssf_common import messages
 from ssf_common.bags.qos import QosReliability, default_profile
 from ssf_common.bags.reader import open_bag
 from ssf_common.bags.writer import BagWriter
-from support import PointCloud2_
+from ssf_common.errors import BagError
+from support import PointCloud2_, wait_until
 
 T0 = 1_650_000_000_000_000_000
 CHATTER_PERIOD_NS = 50_000_000
@@ -36,6 +37,15 @@ def start_recorder(directory: Path, *topics: str) -> subprocess.Popen:
         if "started" in line:
             return recorder
     raise AssertionError(f"recorder exited early with {recorder.wait()}")
+
+
+def recorded_counts(directory: Path) -> dict[str, int]:
+    """Messages per topic in the finished chunks of a recording still being written."""
+    try:
+        with open_bag(directory) as bag:
+            return {name: topic.message_count for name, topic in bag.topics.items()}
+    except BagError:
+        return {}
 
 
 def stop(process: subprocess.Popen, sig: int) -> str:
@@ -79,7 +89,7 @@ def same_bytes(recorded: bytes, original: bytes) -> bool:
     return recorded[: len(original)] == original and len(padding) < 4 and not padding.strip(b"\0")
 
 
-def test_play_then_record_keeps_bytes_timing_qos_and_clock(source_bag, tmp_path):
+def test_play_then_record_keeps_bytes_order_qos_and_clock(source_bag, tmp_path):
     recorded_dir = tmp_path / "recorded"
     recorder = start_recorder(recorded_dir)
     player = subprocess.run(
@@ -88,7 +98,8 @@ def test_play_then_record_keeps_bytes_timing_qos_and_clock(source_bag, tmp_path)
     )  # fmt: skip
     assert player.returncode == 0, player.stderr
     assert f"played {CHATTER_COUNT + CLOUD_COUNT} messages" in player.stderr
-    time.sleep(0.5)
+    everything = {"/chatter": CHATTER_COUNT, "/lidar/points": CLOUD_COUNT}
+    assert wait_until(lambda: all(recorded_counts(recorded_dir).get(t, 0) == n for t, n in everything.items()))
     log = stop(recorder, signal.SIGINT)
     assert recorder.returncode == 0, log
     with open_bag(source_bag) as original, open_bag(recorded_dir) as recorded:
@@ -98,20 +109,14 @@ def test_play_then_record_keeps_bytes_timing_qos_and_clock(source_bag, tmp_path)
             got = [m.data for m in recorded.messages([topic])]
             assert len(got) == len(sent), topic
             assert all(same_bytes(g, s) for g, s in zip(got, sent)), topic
-        chatter = [m.timestamp_ns for m in recorded.messages(["/chatter"])]
-        span_s = (chatter[-1] - chatter[0]) * 1e-9
-        expected_s = (CHATTER_COUNT - 1) * CHATTER_PERIOD_NS * 1e-9 / 2
-        assert abs(span_s - expected_s) < 0.25 * expected_s
-        gaps = np.diff(chatter) * 1e-9
-        assert np.median(gaps) == pytest.approx(CHATTER_PERIOD_NS * 1e-9 / 2, rel=0.3)
         (lidar_qos,) = recorded.topics["/lidar/points"].offered_qos
         assert lidar_qos.reliability is QosReliability.BEST_EFFORT
         (chatter_qos,) = recorded.topics["/chatter"].offered_qos
         assert chatter_qos.reliability is QosReliability.RELIABLE
-        clock = [recorded.decode(m) for m in recorded.messages(["/clock"])]
-        clock_ns = [messages.stamp_ns(c.clock) for c in clock]
-        assert clock_ns[0] == T0 and clock_ns == sorted(clock_ns)
-        assert len(clock) >= 0.8 * (CHATTER_COUNT - 1) * CHATTER_PERIOD_NS / 10_000_000
+        clock_ns = [messages.stamp_ns(recorded.decode(m).clock) for m in recorded.messages(["/clock"])]
+        span_ns = (CHATTER_COUNT - 1) * CHATTER_PERIOD_NS + 1000
+        assert clock_ns and clock_ns == sorted(set(clock_ns))  # best effort: some ticks may be missing, none twice
+        assert all((stamp - T0) % 10_000_000 == 0 and 0 <= stamp - T0 <= span_ns for stamp in clock_ns)
         with RosbagsReader(recorded_dir) as reader:
             assert reader.message_count == recorded.info.message_count
 
@@ -124,7 +129,7 @@ def test_record_closes_a_valid_bag_on_sigterm_while_a_looping_player_runs(source
         stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
-        time.sleep(3.5)
+        assert wait_until(lambda: recorded_counts(recorded_dir).get("/chatter", 0) > 2 * CHATTER_COUNT, timeout_s=60)
         log = stop(recorder, signal.SIGTERM)
         assert recorder.returncode == 0, log
     finally:
@@ -136,7 +141,7 @@ def test_record_closes_a_valid_bag_on_sigterm_while_a_looping_player_runs(source
         assert not bag.info.damage
         assert set(bag.topics) == {"/chatter"}
         texts = [bag.decode(m).data for m in bag.messages()]
-    assert len(texts) > 10
+    assert len(texts) > 2 * CHATTER_COUNT
     assert all(t.startswith("hello ") for t in texts)
 
 
@@ -155,17 +160,29 @@ def test_a_plain_ros2_type_subscriber_receives_the_played_clouds(source_bag):
         Topic(foreign, "rt/lidar/points", PointCloud2_),
         Qos(Policy.Reliability.BestEffort, Policy.History.KeepLast(20), Policy.DataRepresentation(use_cdrv0_representation=True)),
     )
-    player = subprocess.run(
-        ssf_command("bag", "play", str(source_bag), "--topics", "/lidar/points", "--delay", "1.5"),
-        capture_output=True, text=True, timeout=60,
+    player = subprocess.Popen(
+        ssf_command("bag", "play", str(source_bag), "--topics", "/lidar/points", "--loop", "--rate", "4"),
+        stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
-    assert player.returncode == 0, player.stderr
-    clouds = [s for s in reader.take(N=20) if isinstance(s, PointCloud2_)]
     with open_bag(source_bag) as bag:
         sent = [bag.decode(m) for m in bag.messages(["/lidar/points"])]
-    assert len(clouds) == len(sent) == CLOUD_COUNT
-    for got, expected in zip(clouds, sent):
-        assert (got.header.stamp.sec, got.header.stamp.nanosec) == (expected.header.stamp.sec, expected.header.stamp.nanosec)
+    stamps = [(c.header.stamp.sec, c.header.stamp.nanosec) for c in sent]
+    clouds: dict[tuple[int, int], PointCloud2_] = {}
+
+    def take_all() -> bool:  # best effort: the player loops until every cloud has arrived at least once
+        for sample in reader.take(N=20):
+            if isinstance(sample, PointCloud2_):
+                clouds[(sample.header.stamp.sec, sample.header.stamp.nanosec)] = sample
+        return set(stamps) <= set(clouds)
+
+    try:
+        assert wait_until(take_all, timeout_s=60), f"got {len(clouds)} of {len(stamps)} clouds"
+    finally:
+        log = stop(player, signal.SIGINT)
+    assert player.returncode == 0, log
+    assert len(sent) == CLOUD_COUNT and set(clouds) == set(stamps)
+    for expected in sent:
+        got = clouds[(expected.header.stamp.sec, expected.header.stamp.nanosec)]
         assert [f.name for f in got.fields] == ["x", "y", "z", "i"]
         assert bytes(got.data) == expected.data.tobytes()
 
@@ -198,15 +215,47 @@ class FakeNode:
         return FakePublisher(self.log, topic, self.on_publish)
 
 
-def test_player_keeps_order_recorded_qos_and_ticks_clock_at_100_hz_of_bag_time(shared_data):
-    import threading
+class FakeTime:
+    """A clock and a stop event in one: waiting advances the clock instead of sleeping."""
 
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def wait(self, seconds: float) -> bool:
+        self.now += seconds
+        return False
+
+    def is_set(self) -> bool:
+        return False
+
+
+def test_player_publishes_each_message_at_its_bag_time_over_the_rate(source_bag):
+    from ssf_common.bags.play import Player, PlayOptions
+
+    fake = FakeTime()
+    published_at: list[float] = []
+    node = FakeNode(on_publish=lambda: published_at.append(fake.now))
+    with open_bag(source_bag) as bag:
+        stamps = [m.timestamp_ns for m in bag.messages()]
+        stats = Player(bag, PlayOptions(rate=2.0, clock=True), node, fake, clock=fake).run()
+    assert stats.messages == len(stamps) == CHATTER_COUNT + CLOUD_COUNT and stats.skipped == 0
+    expected = [(stamp - stamps[0]) * 1e-9 / 2.0 for stamp in stamps]
+    assert published_at == pytest.approx(expected, abs=1e-9)
+    ticks = [messages.stamp_ns(msg.clock) for topic, msg in node.log if topic == "/clock"]
+    assert ticks == list(range(T0, stamps[-1] + 1, 10_000_000))
+
+
+def test_player_keeps_order_recorded_qos_and_ticks_clock_at_100_hz_of_bag_time(shared_data):
     from ssf_common.bags.play import Player, PlayOptions
     from ssf_common.middleware import Durability, Reliability
 
     node = FakeNode()
+    fake = FakeTime()
     with open_bag(shared_data / "ros2_bags" / "talker_mcap") as bag:
-        stats = Player(bag, PlayOptions(rate=100.0, clock=True), node, threading.Event()).run()
+        stats = Player(bag, PlayOptions(rate=100.0, clock=True), node, fake, clock=fake).run()
         expected = [(m.topic, m.data) for m in bag.messages()]
         span_ns = bag.info.duration_ns
     assert stats.messages == 20 and stats.passes == 1
@@ -220,8 +269,6 @@ def test_player_keeps_order_recorded_qos_and_ticks_clock_at_100_hz_of_bag_time(s
 
 
 def test_player_loops_until_stopped(shared_data):
-    import threading
-
     from ssf_common.bags.play import Player, PlayOptions
 
     stop = threading.Event()
