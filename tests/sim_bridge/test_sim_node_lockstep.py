@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-import time
+import threading
 
 import pytest
 
@@ -44,9 +44,18 @@ def twist(speed: float):
     return messages.msg_type("geometry_msgs/msg/Twist")(linear=vector(x=speed, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0))
 
 
+def ticks_on_the_node(sim: SimBridgeNode, count: int) -> None:
+    """Run the node's step check `count` times on its own executor thread, and wait until it has."""
+    done = threading.Event()
+    for _ in range(count):
+        sim.call_soon(sim.tick)
+    sim.call_soon(done.set)
+    assert done.wait(20)
+
+
 def test_each_step_waits_for_its_command(lockstep_graph):
     sim, scans, cmd = lockstep_graph(timeout_s=30.0)
-    time.sleep(0.5)
+    ticks_on_the_node(sim, 50)
     assert len(scans) == 1 and sim.sim.frame.index == 0  # no command, no step
     for step in range(1, 6):
         cmd.publish(twist(2.0))

@@ -3,7 +3,7 @@
 import subprocess
 import sys
 import textwrap
-import time
+import threading
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -145,27 +145,41 @@ def test_two_processes_publish_and_subscribe(nodes):
     listener = nodes("listener")
     inbox = Inbox()
     listener.create_subscription("std_msgs/msg/String", "/test/from_child", inbox)
+    ack = listener.create_publisher("std_msgs/msg/String", "/test/ack")
     listener.spin_in_thread()
     child = textwrap.dedent(
         """
-        import time
+        import sys, time
         from ssf_common import messages
         from ssf_common.middleware import Node, shutdown
+
+        def wait_until(predicate, timeout_s=30.0):
+            deadline = time.monotonic() + timeout_s
+            while not predicate() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            return predicate()
+
         node = Node("child_talker")
+        acks = []
+        node.create_subscription("std_msgs/msg/String", "/test/ack", acks.append)
+        node.spin_in_thread()
         pub = node.create_publisher("std_msgs/msg/String", "/test/from_child")
-        deadline = time.monotonic() + 10
-        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        assert wait_until(lambda: pub.get_subscription_count() > 0)
         for i in range(5):
             pub.publish(messages.msg_type("std_msgs/msg/String")(data=f"msg {i}"))
-            time.sleep(0.02)
-        time.sleep(0.5)
-        node.destroy_node(); shutdown()
+        received = wait_until(lambda: bool(acks))  # the parent says it has all five: now we may leave
+        node.request_shutdown(); node.destroy_node(); shutdown()
+        sys.exit(0 if received else 3)
         """
     )
-    result = subprocess.run([sys.executable, "-P", "-c", child], capture_output=True, text=True, timeout=60)
-    assert result.returncode == 0, result.stderr
-    assert wait_until(lambda: len(inbox.items) == 5)
+    process = subprocess.Popen([sys.executable, "-P", "-c", child], stderr=subprocess.PIPE, text=True)
+    String = messages.msg_type("std_msgs/msg/String")
+    try:
+        assert wait_until(lambda: len(inbox.items) == 5, timeout_s=60)
+        assert wait_until(lambda: ack.publish(String(data="got them")) or process.poll() is not None, timeout_s=60)
+    finally:
+        _, err = process.communicate(timeout=60)
+    assert process.returncode == 0, err
     assert [m.data for m in inbox.items] == [f"msg {i}" for i in range(5)]
 
 
@@ -205,13 +219,14 @@ def test_a_subscriber_knowing_only_the_ros2_type_name_receives_our_clouds(nodes)
     publisher = talker.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
     assert wait_until(lambda: publisher.get_subscription_count() > 0)
     xyz = np.arange(30, dtype=np.float32).reshape(10, 3)
-    samples = []
-    deadline = time.monotonic() + 10
-    while not samples and time.monotonic() < deadline:
+    samples: list = []
+
+    def publish_and_take() -> bool:  # best effort: publish again until one cloud has arrived
         publisher.publish(xyz_to_cloud(xyz, messages.header(5_000_000_001, "lidar")))
-        time.sleep(0.1)
-        samples = [s for s in reader.take(N=10) if isinstance(s, PointCloud2_)]
-    assert samples, "the plain ROS 2 type subscriber got nothing"
+        samples.extend(s for s in reader.take(N=10) if isinstance(s, PointCloud2_))
+        return bool(samples)
+
+    assert wait_until(publish_and_take), "the plain ROS 2 type subscriber got nothing"
     cloud = samples[0]
     assert (cloud.header.stamp.sec, cloud.header.stamp.nanosec, cloud.header.frame_id) == (5, 1, "lidar")
     assert [f.name for f in cloud.fields][:3] == ["x", "y", "z"] and cloud.width == 10
@@ -230,11 +245,14 @@ def test_sim_time_follows_clock_and_drives_timers(nodes):
     assert node.get_clock().now_ns() == 0
     Clock = messages.msg_type("rosgraph_msgs/msg/Clock")
     for step in range(1, 11):
-        clock_pub.publish(Clock(clock=messages.stamp(step * 50_000_000)))  # 0.05 s of sim time per step
-        time.sleep(0.03)
-    assert wait_until(lambda: node.get_clock().now_ns() == 500_000_000)
-    assert 3 <= len(ticks.items) <= 6  # 0.5 s of sim time at 10 Hz, whatever the wall time was
-    assert all(tick > 0 for tick in ticks.items)
+        stamp = step * 50_000_000  # 0.05 s of sim time per step
+        clock_pub.publish(Clock(clock=messages.stamp(stamp)))
+        assert wait_until(lambda: node.get_clock().now_ns() == stamp)
+        handled = threading.Event()  # after this, the executor has run every timer due at `stamp`
+        node.call_soon(handled.set)
+        assert handled.wait(10)
+    # 0.5 s of sim time at 10 Hz, each tick at the sim time it was due, whatever the wall time was
+    assert ticks.items == [100_000_000, 200_000_000, 300_000_000, 400_000_000, 500_000_000]
 
 
 def test_nodes_are_announced_on_ros_discovery_info_for_ros2_node_list(nodes):
