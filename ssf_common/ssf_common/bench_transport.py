@@ -162,12 +162,21 @@ def run_bench(rate_hz: float = 10.0, duration_s: float = 20.0, progress: Any = N
 
 def bench_command(args: argparse.Namespace) -> int:
     """Handler of `ssf bench transport`."""
-    result = run_bench(args.rate, args.duration, progress=lambda text: print(f"bench transport: {text}", file=sys.stderr))
-    text = json.dumps(asdict(result), indent=2)
-    print(text)
+    from ssf_common.checks import require_finite
+    from ssf_common.errors import ConfigError
+    from ssf_common.jsonio import dumps_strict, write_json
+    from ssf_common.paths import check_writable
+
+    rate = require_finite(args.rate, "--rate", above=0.0, at_most=10_000.0)
+    duration = require_finite(args.duration, "--duration", above=0.0, at_most=86_400.0)
+    if int(rate * duration) < 1:
+        raise ConfigError(f"--rate {rate:g} for --duration {duration:g} s sends no cloud; send at least one")
     if args.json:
-        with open(args.json, "w") as out:
-            out.write(text + "\n")
+        check_writable(args.json, "--json figures")
+    result = run_bench(rate, duration, progress=lambda text: print(f"bench transport: {text}", file=sys.stderr))
+    print(dumps_strict(asdict(result)))
+    if args.json:
+        write_json(args.json, asdict(result))
     shutdown()
     return 0
 

@@ -198,7 +198,7 @@ def parse_override(item: str, flag: str = "-p") -> tuple[str, Any]:
     if index < 0 or not name:
         raise ConfigError(f"{flag} expects NAME:=VALUE, got {item!r}")
     if not _NAME.fullmatch(name):
-        raise ConfigError(f"{flag} {item!r}: '{name}' is not a parameter name (letters, digits, '_', dotted)")
+        raise ConfigError(f"{flag} {item!r}: {name!r} is not a parameter name (letters, digits, '_', dotted)")
     text = item[index + 1 :]
     if not text.strip():
         raise ConfigError(f"{flag} {name}: the value is empty (write {name}:=\"\" for an empty string)")
@@ -259,6 +259,7 @@ def describe_validation_error(err: ValidationError, source: str) -> str:
     """Condense a pydantic error to one line naming the first bad field."""
     first = err.errors()[0]
     field = ".".join(str(part) for part in first["loc"]) or "(root)"
+    field = field if field.isprintable() else repr(field)[1:-1]
     got = first.get("input")
     got_text = "" if isinstance(got, (dict, list)) else f" (got {_short(got)})"
     more = len(err.errors()) - 1

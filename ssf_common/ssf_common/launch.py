@@ -22,6 +22,7 @@ from ssf_common import config as config_lib
 from ssf_common.checks import require_finite
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
+from ssf_common.middleware.params import params_file_sections
 
 _PR_SET_PDEATHSIG = 1
 CONFIG_ERROR_EXIT = 2  # a node's answer to bad parameters or files: restarting cannot help
@@ -74,6 +75,8 @@ def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> Gra
         params_file = node.params_file
         if params_file and not Path(params_file).is_absolute():
             params_file = str((path.parent / params_file).resolve())
+        if params_file:
+            params_file_sections(Path(params_file))  # a broken params file is the graph's error, before any start
         nodes.append(node.model_copy(update={"params_file": params_file}))
     graph = graph.model_copy(update={"nodes": nodes})
     if overrides:

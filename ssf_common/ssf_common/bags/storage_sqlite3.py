@@ -33,9 +33,9 @@ class Sqlite3File:
         self._db = sqlite3.connect(f"file:{quote(str(path.resolve()))}?mode=ro", uri=True)
         try:
             self._load()
-        except sqlite3.Error as err:
+        except (sqlite3.Error, UnicodeDecodeError) as err:  # text columns that are not UTF-8 raise the latter
             self._db.close()
-            raise BagError(f"{path}: cannot read the sqlite3 bag ({err})") from None
+            raise BagError(f"{path}: cannot read the sqlite3 bag ({type(err).__name__}: {err})") from None
 
     def _load(self) -> None:
         tables = {row[0] for row in self._db.execute("SELECT name FROM sqlite_master WHERE type='table'")}

@@ -81,19 +81,25 @@ def _split_assignment(text: str | None, flag: str) -> tuple[str, str]:
 
 def read_params_file(path: Path, node_name: str) -> dict[str, Any]:
     """Parameters for one node from a ROS 2 params YAML (`node: {ros__parameters: {...}}`, wildcards too)."""
-    data = read_yaml(path)
     params: dict[str, Any] = {}
-    for pattern, section in data.items():
-        key = str(pattern).lstrip("/")
-        if not (fnmatch.fnmatch(node_name, key) or key in ("**", "*")):
-            continue
+    for pattern, values in params_file_sections(path):
+        key = pattern.lstrip("/")
+        if fnmatch.fnmatch(node_name, key) or key in ("**", "*"):
+            params.update(values)
+    return params
+
+
+def params_file_sections(path: Path) -> list[tuple[str, dict[str, Any]]]:
+    """Every section of a ROS 2 params YAML with its dotted parameters, each section checked."""
+    sections = []
+    for pattern, section in read_yaml(path).items():
         if not isinstance(section, dict) or "ros__parameters" not in section:
             raise ConfigError(f"{path}: section '{pattern}' needs a 'ros__parameters' mapping")
         values = section["ros__parameters"]
         if not isinstance(values, dict):
             raise ConfigError(f"{path}: '{pattern}.ros__parameters' must be a mapping")
-        params.update(flatten(values))
-    return params
+        sections.append((str(pattern), flatten(values)))
+    return sections
 
 
 @dataclass(frozen=True)

@@ -113,7 +113,8 @@ def load_scan(path: str | Path, *, max_coordinate: float = MAX_COORDINATE_M) -> 
             raise DataError(f"{path}: field '{name}' has count > 1; expected one value per point")
         if field.kind not in "iuf":
             raise DataError(f"{path}: field '{name}' holds {field} values; expected numbers (int, uint or float)")
-    xyz = np.stack([points[name].reshape(-1).astype(np.float64) for name in XYZ], axis=1)
+    with np.errstate(invalid="ignore", over="ignore"):  # signalling NaNs and huge integers are judged below
+        xyz = np.stack([points[name].reshape(-1).astype(np.float64) for name in XYZ], axis=1)
     finite = np.isfinite(xyz).all(axis=1)
     with np.errstate(invalid="ignore"):
         near = (np.abs(np.where(finite[:, None], xyz, 0.0)) <= max_coordinate).all(axis=1)

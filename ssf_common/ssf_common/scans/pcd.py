@@ -53,10 +53,11 @@ def _pcd_header(raw: bytes) -> tuple[dict[str, list[str]], bytes]:
         if not line:
             continue
         try:
-            key, *values = line.decode("ascii").split()
+            words = line.decode("ascii").split()
         except UnicodeDecodeError:
             raise FormatError("not a PCD file: header is not ASCII text") from None
-        header[key.upper()] = values
+        if words:
+            header[words[0].upper()] = words[1:]
     if "COLUMNS" in header and "FIELDS" not in header:
         header["FIELDS"] = header["COLUMNS"]
     return header, raw[position:]
