@@ -276,8 +276,11 @@ def _short(value: Any, limit: int = 80) -> str:
 def build(model: type[ModelT], *layers: dict[str, Any], source: str = "config") -> ModelT:
     """Validate the deep merge of layers (nested or dotted dicts, later wins) into a config model."""
     merged: dict[str, Any] = {}
-    for layer in layers:
-        merged = merge(merged, unflatten(flatten(layer)))
+    try:
+        for layer in layers:
+            merged = merge(merged, unflatten(flatten(layer)))
+    except ConfigError as err:
+        raise ConfigError(f"{source}: {err}") from None
     try:
         return model.model_validate(merged)
     except ValidationError as err:

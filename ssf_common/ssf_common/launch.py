@@ -103,10 +103,7 @@ def _check_parameter(name: str, value: Any, source: str) -> None:
                               "(a number, bool, string, or a list of them)")
         if isinstance(item, float) and not math.isfinite(item):
             raise ConfigError(f"{source}: parameter '{name}' must be a finite number, got {item!r}")
-    try:
-        back_name, back = config_lib.parse_override(f"{name}:={param_text(value)}", source)
-    except ConfigError as err:
-        raise ConfigError(f"parameter '{name}': {err}") from None
+    back_name, back = config_lib.parse_override(f"{name}:={param_text(value)}", f"{source}: parameter")
     if back_name != name or back != (list(value) if isinstance(value, tuple) else value):
         raise ConfigError(f"{source}: parameter '{name}': {value!r} cannot be passed as -p {name}:=...")
 
@@ -315,8 +312,3 @@ class Launcher:
         for label, failure in self.failures:
             self._say("launch", f"{label} {failure}")
         return 1 if self.failures else 0
-
-
-def describe_failures(launcher: Launcher) -> str:
-    """The nodes that failed, on one line ('' when none did)."""
-    return "; ".join(f"{label} {failure}" for label, failure in launcher.failures)

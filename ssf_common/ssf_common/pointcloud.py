@@ -40,8 +40,8 @@ class WarningLogger(Protocol):
 def cloud_dtype(msg: Any) -> np.dtype:
     """Structured dtype of one point: field names, types, offsets and itemsize = point_step."""
     point_step = int(msg.point_step)
-    if point_step <= 0:
-        raise MessageError(f"PointCloud2 point_step is {point_step}; it must be positive")
+    if not 0 < point_step < 2**31:  # numpy's itemsize is a C int
+        raise MessageError(f"PointCloud2 point_step is {point_step}; it must be positive and below 2**31")
     order = ">" if msg.is_bigendian else "<"
     names: list[str] = []
     formats: list[Any] = []

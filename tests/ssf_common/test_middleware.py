@@ -81,6 +81,23 @@ def test_bad_ros_args_are_one_line_errors(argv, message):
         parse_ros_args(argv, "n")
 
 
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"/**:\n  ros__parameters: {name: caf\xe9}\n", r"not UTF-8 text \(byte 0xe9 at offset 34\)"),
+        (b"/**:\n  ros__parameters: &p {a: *p}\n", "recursive alias"),
+        (b"/**:\n  ros__parameters: {rate: 1}\n/**:\n  ros__parameters: {rate: 2}\n", "appears twice"),
+        (b"/**:\n  ros__parameters: 5\n", "must be a mapping"),
+    ],
+)
+def test_bad_params_files_are_one_line_errors(tmp_path, content, message):
+    path = tmp_path / "params.yaml"
+    path.write_bytes(content)
+    with pytest.raises(ConfigError, match=message) as caught:
+        parse_ros_args(["--ros-args", "--params-file", str(path)], "n")
+    assert str(path) in str(caught.value)
+
+
 def test_declare_config_uses_dotted_parameter_names(nodes):
     node = nodes("configured", ["--ros-args", "-p", "lidar.rows:=32", "-p", "lidar.range_m:=120"])
     config = node.declare_config(SensorConfig)
