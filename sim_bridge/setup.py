@@ -29,5 +29,8 @@ setup(
         "ssf.commands": [
             "sim = sim_bridge.cli:register",
         ],
+        "ssf.scenarios": [
+            "sim = sim_bridge.scenario:load_scenario",
+        ],
     },
 )

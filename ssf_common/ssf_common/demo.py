@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import importlib
 import json
 import sys
 import time
 from dataclasses import dataclass
-from importlib import resources
+from importlib import metadata, resources
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +18,7 @@ from ssf_common.launch import GraphSpec, Launcher, NodeSpec, load_graph
 from ssf_common.paths import check_writable_dir
 
 RECORDED_TOPICS = ("/lidar/points", "/clock", "/sim/episode", "/ssf/flow")  # what a healthy run must hold
+SCENARIO_LOADERS = "ssf.scenarios"  # entry points: load_scenario(name_or_path) of the installed simulator
 
 
 @dataclass(frozen=True)
@@ -74,12 +74,8 @@ def check_inputs(scenario: str, duration_s: float, out: Path, seed: int) -> None
     require_finite(duration_s, "--duration", above=0.0)
     if seed != -1:
         require_seed(seed, "--seed")
-    try:  # the simulator's own reader, when sim_bridge is installed; otherwise its node reports it
-        scenarios = importlib.import_module("sim_bridge.scenario")
-    except ModuleNotFoundError:
-        scenarios = None
-    if scenarios is not None:
-        scenarios.load_scenario(scenario)
+    for loader in metadata.entry_points(group=SCENARIO_LOADERS):  # the simulator's own reader, when installed
+        loader.load()(scenario)
     if DemoPaths(out).recording.exists():
         raise ConfigError(f"{DemoPaths(out).recording} already exists; choose another --out")
     check_writable_dir(out, "--out folder")

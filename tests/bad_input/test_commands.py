@@ -159,6 +159,17 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["flow", "estimate", *scan_pair(f), "--flow-config", hostile_yaml_file(d, f),
                       "--out", str(f / "flow.npy")],
     ),
+    "seg estimate": one_of(
+        lambda d, f: ["seg", "estimate", *scan_pair(f), "--out", bad_output(d, f)],
+        lambda d, f: ["seg", "estimate", *scan_pair(f), "--out", str(f / "seg.npy"), "--config", hostile_yaml_file(d, f)],
+    ),
+    "eval seg": lambda d, f: ["eval", "seg", "--scenario", "empty", "--config", hostile_yaml_file(d, f)],
+    "eval fusion": one_of(
+        lambda d, f: ["eval", "fusion", "--scenario", "empty", "--config", hostile_yaml_file(d, f)],
+        lambda d, f: ["eval", "fusion", "--scenario", "empty", d(st.sampled_from(["--json", "--plot"])), bad_output(d, f)],
+    ),
+    "bench seg": lambda d, f: ["bench", "seg", "--config", hostile_yaml_file(d, f)],
+    "bench fusion": lambda d, f: ["bench", "fusion", "--config", hostile_yaml_file(d, f)],
     "train flow": lambda d, f: ["train", "flow", "--data", str(f / "no_pairs"), "--out", str(f / "w.pt")],
     "eval flow": lambda d, f: ["eval", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
     "bench flow": lambda d, f: ["bench", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
@@ -182,7 +193,8 @@ def test_every_command_has_bad_input_cases():
     assert not set(HOSTILE) - commands, "HOSTILE names commands that no longer exist"
 
 
-SLOW = {"eval flow": 8, "bench flow": 8}  # commands that import torch and build estimators before they read input
+SLOW = {name: 8 for name in ("eval flow", "bench flow", "seg estimate", "eval seg", "eval fusion", "bench seg",
+                              "bench fusion")}  # commands that import torch and build estimators before they read input
 
 
 @pytest.mark.timeout(240)
@@ -227,30 +239,26 @@ def test_as_a_process_bad_input_is_one_line_without_traceback(tmp_path, argv):
     assert len(result.stderr.strip().splitlines()) == 1 and "Traceback" not in result.stderr
 
 
-# Open items of issue 14 in the flow commands (ssf_flow_node, being reworked for issue 8). Each is expected to
-# fail until fixed there; a fix makes the test pass, and strict=True then asks for the marker to go.
 SMALL_SCENARIO = (
     "agents: {count: 4}\nroute: {waypoints: [[0, 0], [60, 0]]}\nground: {margin: 30}\nlidar: {columns: 128, beams: 16}\n"
 )
-LEAD = pytest.mark.xfail(strict=True, reason="issue 14, flow commands: ssf_flow_node/cli.py (issue 8 owner)")
+FLOW_CASES = [
+    pytest.param(["flow", "estimate", "{t0}", "{t1}", "--mask", "{mask}", "--out", "{out}"], id="mask of strings"),
+    pytest.param(["flow", "estimate", "{t0}", "{t1}", "-p", "preprocess.points=[1,", "--out", "{out}"], id="-p parse"),
+    pytest.param(["flow", "estimate", "{t0}", "{t1}", "--out", "/proc/nope/flow.npy"], id="--out checked first"),
+    pytest.param(["eval", "flow", "--scenario", "{small}", "--warmup", "0", "--frames", "0", "--estimators", "zero"],
+                 id="--frames 0"),
+    pytest.param(["eval", "flow", "--scenario", "{small}", "--warmup", "0", "--frames", "1", "--estimators", "zero",
+                  "--json", "/proc/nope/x.json"], id="eval --json first"),
+    # Open in the flow commands (issue 8 reworks them): expected to fail until fixed there; a fix makes the test
+    # pass, and strict=True then asks for the marker to go.
+    pytest.param(["bench", "flow", "--scenario", "synthetic", "--frames", "1", "--estimators", "zero",
+                  "--json", "/proc/nope/x.json"], id="bench --json late",
+                 marks=pytest.mark.xfail(strict=True, reason="issue 14: ssf bench flow checks --json after the run")),
+]
 
 
-@LEAD
-@pytest.mark.parametrize(
-    "argv",
-    [
-        ["flow", "estimate", "{t0}", "{t1}", "--mask", "{mask}", "--out", "{out}"],
-        ["flow", "estimate", "{t0}", "{t1}", "-p", "preprocess.points=[1,", "--out", "{out}"],
-        ["flow", "estimate", "{t0}", "{t1}", "--out", "/proc/nope/flow.npy"],
-        ["eval", "flow", "--scenario", "{small}", "--skip", "0", "--frames", "0", "--estimators", "zero"],
-        ["eval", "flow", "--scenario", "{small}", "--skip", "0", "--frames", "1", "--estimators", "zero",
-         "--json", "/proc/nope/x.json"],
-        ["bench", "flow", "--scenario", "synthetic", "--frames", "1", "--estimators", "zero",
-         "--json", "/proc/nope/x.json"],
-    ],
-    ids=["mask of strings", "-p parse error", "--out checked late", "--frames 0", "eval --json late",
-         "bench --json late"],
-)
+@pytest.mark.parametrize("argv", FLOW_CASES)
 def test_flow_commands_answer_bad_input_in_one_line_early(tmp_path, capsys, argv):
     t0, t1 = scan_pair(tmp_path)
     np.save(tmp_path / "mask.npy", np.array(["moving"] * 64))
