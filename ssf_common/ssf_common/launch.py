@@ -98,7 +98,7 @@ def node_parameters(node: NodeSpec, global_parameters: dict[str, Any], source: s
 def _check_parameter(name: str, value: Any, source: str) -> None:
     items = value if isinstance(value, (list, tuple)) else [value]
     for item in items:
-        if item is None or isinstance(item, (dict, list, tuple)) or not isinstance(item, (bool, int, float, str)):
+        if isinstance(item, (dict, list, tuple)) or not isinstance(item, (bool, int, float, str)):
             raise ConfigError(f"{source}: parameter '{name}': {item!r} is not a parameter value "
                               "(a number, bool, string, or a list of them)")
         if isinstance(item, float) and not math.isfinite(item):
