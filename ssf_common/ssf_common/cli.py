@@ -10,7 +10,7 @@ import argparse
 import sys
 from dataclasses import dataclass
 from importlib import metadata
-from typing import Sequence
+from typing import NoReturn, Sequence
 
 from ssf_common.errors import SsfError
 
@@ -27,9 +27,17 @@ class CommandGroups:
     bench: argparse._SubParsersAction
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (and exit 2), like every other error of `ssf`."""
+
+    def error(self, message: str) -> NoReturn:
+        """Print `PROG: error: MESSAGE (see PROG --help)` and exit 2."""
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The full `ssf` parser with every package's commands."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="ssf",
         description="SSF-PAN: semantic scene flow perception and navigation, as a ROS 2 node graph.",
     )

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import Any
 
 from ssf_common.cli import CommandGroups
 
@@ -59,29 +58,9 @@ def add_estimator_options(parser: argparse.ArgumentParser, with_name: bool = Tru
         parser.add_argument("--device", default="cpu", help="torch device for asf")
 
 
-def parse_overrides(items: list[str], flag: str) -> dict[str, Any]:
-    """NAME:=VALUE (or NAME=VALUE) pairs with YAML-typed values."""
-    import yaml
-
-    from ssf_common.errors import ConfigError
-
-    values = {}
-    for item in items:
-        name, sep, text = item.partition(":=")
-        if not sep:
-            name, sep, text = item.partition("=")
-        if not sep or not name:
-            raise ConfigError(f"{flag} expects NAME:=VALUE, got {item!r}")
-        try:
-            values[name] = yaml.safe_load(text)
-        except yaml.YAMLError:
-            raise ConfigError(f"{flag} {name}: {text!r} is not a valid value") from None
-    return values
-
-
 def flow_config(args: argparse.Namespace, whole_scans: bool = False):
     """The estimator config from --flow-config and -p overrides (over the whole-scan defaults if asked)."""
-    from ssf_common.config import build, read_yaml
+    from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig
 
     file = read_yaml(args.flow_config) if args.flow_config else {}
@@ -114,7 +93,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ssf_common.paths import check_writable, save_npy
-    from ssf_common.scan_io import read_scan
+    from ssf_common.scans import read_scan
     from ssf_flow_node.core.estimator import make_estimator
 
     check_writable(args.out, "flow file")
@@ -131,7 +110,7 @@ def run_estimate(args: argparse.Namespace) -> int:
 
 def run_train(args: argparse.Namespace) -> int:
     """ssf train flow."""
-    from ssf_common.config import load
+    from ssf_common.config import load, parse_overrides
     from ssf_common.dataset.pairs import pair_files
     from ssf_flow_node.core.training import TrainConfig, Trainer
 

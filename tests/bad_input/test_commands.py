@@ -250,11 +250,8 @@ FLOW_CASES = [
                  id="--frames 0"),
     pytest.param(["eval", "flow", "--scenario", "{small}", "--warmup", "0", "--frames", "1", "--estimators", "zero",
                   "--json", "/proc/nope/x.json"], id="eval --json first"),
-    # Open in the flow commands (issue 8 reworks them): expected to fail until fixed there; a fix makes the test
-    # pass, and strict=True then asks for the marker to go.
     pytest.param(["bench", "flow", "--scenario", "synthetic", "--frames", "1", "--estimators", "zero",
-                  "--json", "/proc/nope/x.json"], id="bench --json late",
-                 marks=pytest.mark.xfail(strict=True, reason="issue 14: ssf bench flow checks --json after the run")),
+                  "--json", "/proc/nope/x.json"], id="bench --json late"),
 ]
 
 

@@ -5,7 +5,7 @@ import pytest
 
 from ssf_common.config import build
 from ssf_common.errors import ConfigError
-from ssf_common.scan_io import read_scan
+from ssf_common.scans import read_scan
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 from ssf_common.geometry.se3 import rigid_flow
 from ssf_common.dataset.synthetic import synthetic_pair

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ssf_common import scan_io
+from ssf_common import scans
 from ssf_common.errors import DataError
 
 
@@ -41,12 +41,12 @@ def write_poses(path: str | Path, poses: np.ndarray) -> None:
 
 def read_bin(path: str | Path) -> np.ndarray:
     """A KITTI .bin scan as float32 (N, 4): x, y, z, intensity."""
-    return scan_io.read_scan(path)
+    return scans.read_scan(path)
 
 
 def write_bin(path: str | Path, points: np.ndarray, intensity: np.ndarray) -> None:
     """Write a KITTI .bin scan: float32 x, y, z, intensity."""
-    scan_io.write_bin(path, np.c_[points, intensity])
+    scans.write_bin(path, np.c_[points, intensity])
 
 
 class KittiSequence:

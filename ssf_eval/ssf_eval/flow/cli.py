@@ -95,12 +95,15 @@ def run_bench(args: argparse.Namespace) -> int:
     from ssf_common.dataset.masks import noisy_mask
     from ssf_common.dataset.synthetic import synthetic_pair
     from ssf_common.errors import ConfigError
+    from ssf_common.paths import check_writable
     from ssf_eval.results import write_result
     from ssf_eval.sources import protocol_from_args, simulator_pairs
     from ssf_flow_node.cli import build_estimators, flow_config
 
     if args.frames < 1:
         raise ConfigError(f"--frames must be at least 1, got {args.frames}")
+    if args.json:
+        check_writable(args.json, "result file")
     torch.set_num_threads(args.threads)
     estimators = build_estimators(args.estimators, args, skip_missing=False)
     count = max(2, min(args.frames, 5))

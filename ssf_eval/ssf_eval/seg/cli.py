@@ -97,9 +97,8 @@ def add_bench_options(parser: argparse.ArgumentParser) -> None:
 
 def perception_config(args: argparse.Namespace, **overrides: Any):
     """The perception config from --config, -p and the command's own flags."""
-    from ssf_common.config import build, read_yaml
+    from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_eval.pipeline import PerceptionConfig
-    from ssf_flow_node.cli import parse_overrides
     from ssf_flow_node.core.estimator import WHOLE_SCAN
 
     whole = getattr(args, "protocol", None) == "whole" or not hasattr(args, "protocol")  # scans as the nodes see them
@@ -114,7 +113,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ssf_common.paths import check_writable, save_npy
-    from ssf_common.scan_io import read_scan
+    from ssf_common.scans import read_scan
     from ssf_eval.pipeline import SsfPerception
     from ssf_eval.results import write_result
 
@@ -250,10 +249,13 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
 def bench_pairs(args: argparse.Namespace):
     """A few simulator pairs (paper protocol, after the warm-up) to time on."""
     from ssf_common.errors import ConfigError
+    from ssf_common.paths import check_writable
     from ssf_eval.sources import simulator_pairs
 
     if args.frames < 1:
         raise ConfigError(f"--frames must be at least 1, got {args.frames}")
+    if args.json:
+        check_writable(args.json, "result file")
     return simulator_pairs(args.scenario, 0, max(2, min(args.frames, 5))).pairs
 
 
