@@ -5,11 +5,15 @@ from __future__ import annotations
 import argparse
 
 from ssf_common.cli import CommandGroups
+from ssf_common.viewer.command import add_foxglove_options
 
 
 def register(groups: CommandGroups) -> None:
     """Add ssf_common's commands."""
+    from ssf_common.viewer import command as view
+
     _register_graph_commands(groups)
+    view.add_parser(groups.top)
     _register_bag_commands(groups)
     _register_bench_commands(groups)
 
@@ -27,6 +31,7 @@ def _register_graph_commands(groups: CommandGroups) -> None:
     launch.add_argument(
         "-p", "--param", action="append", default=[], metavar="NAME:=VALUE", help="parameter given to every node"
     )
+    add_foxglove_options(launch)
     launch.set_defaults(func=_launch)
 
     demo = groups.top.add_parser(
@@ -40,14 +45,20 @@ def _register_graph_commands(groups: CommandGroups) -> None:
     demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated driving (default 20)")
     demo.add_argument("--seed", type=int, default=-1, help="scenario seed (default: the scenario's own)")
     demo.add_argument("--out", default=None, help="output folder (default bags/demo_<time>)")
+    demo.add_argument("--video", metavar="FILE", default=None,
+                      help="after the run, render a bird's-eye animation of the recording to FILE (.mp4 or .gif)")
+    add_foxglove_options(demo)
     demo.set_defaults(func=_demo)
 
 
 def _launch(args: argparse.Namespace) -> int:
     from ssf_common.config import parse_overrides
     from ssf_common.launch import Launcher, load_graph
+    from ssf_common.viewer.command import viewer_config, with_viewer
 
-    return Launcher(load_graph(args.graph, parse_overrides(args.param, "-p"))).run(args.duration)
+    viewer = viewer_config(args, "ssf launch")
+    graph = with_viewer(load_graph(args.graph, parse_overrides(args.param, "-p")), viewer)
+    return Launcher(graph).run(args.duration)
 
 
 def _register_bag_commands(groups: CommandGroups) -> None:
@@ -66,8 +77,11 @@ def _demo(args: argparse.Namespace) -> int:
 
     from ssf_common.demo import run_demo
 
+    from ssf_common.viewer.command import viewer_config
+
     out = Path(args.out) if args.out else Path("bags") / time.strftime("demo_%Y%m%d_%H%M%S")
-    return run_demo(args.scenario, args.duration, out, args.seed)
+    video = Path(args.video) if args.video else None
+    return run_demo(args.scenario, args.duration, out, args.seed, viewer=viewer_config(args, "ssf demo"), video=video)
 
 
 def _register_bench_commands(groups: CommandGroups) -> None:

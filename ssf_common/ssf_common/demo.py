@@ -16,6 +16,8 @@ from ssf_common.errors import ConfigError, DataError, SsfError
 from ssf_common.jsonio import dumps_strict
 from ssf_common.launch import GraphSpec, Launcher, NodeSpec, load_graph
 from ssf_common.paths import check_writable_dir
+from ssf_common.viewer.command import with_viewer
+from ssf_common.viewer.server import ViewerConfig
 
 RECORDED_TOPICS = ("/lidar/points", "/clock", "/sim/episode", "/ssf/flow")  # what a healthy run must hold
 SCENARIO_LOADERS = "ssf.scenarios"  # entry points: load_scenario(name_or_path) of the installed simulator
@@ -49,7 +51,8 @@ class DemoPaths:
 
 
 def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int) -> GraphSpec:
-    """The shipped demo graph with this run's scenario, duration and output paths filled in."""
+    """The shipped demo graph with this run's scenario, duration and output paths filled in (the episode picture is
+    drawn from the recording afterwards, see `draw_episode`)."""
     graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
     nodes: list[NodeSpec] = []
     for node in graph.nodes:
@@ -62,14 +65,13 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int) ->
                 "seed": seed,
                 "duration_s": duration_s,
                 "summary": str(paths.summary),
-                "render": str(paths.picture),
             }
             node = node.model_copy(update={"parameters": parameters})
         nodes.append(node)
     return graph.model_copy(update={"nodes": nodes})
 
 
-def check_inputs(scenario: str, duration_s: float, out: Path, seed: int) -> None:
+def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: Path | None = None) -> None:
     """Refuse bad flags in one line before any process starts."""
     require_finite(duration_s, "--duration", above=0.0)
     if seed != -1:
@@ -79,13 +81,19 @@ def check_inputs(scenario: str, duration_s: float, out: Path, seed: int) -> None
     if DemoPaths(out).recording.exists():
         raise ConfigError(f"{DemoPaths(out).recording} already exists; choose another --out")
     check_writable_dir(out, "--out folder")
+    if video is not None:
+        from ssf_common.render.video import check_video_path
+
+        check_video_path(video, "--video")
 
 
-def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1) -> int:
-    """Run the graph until the episode ends; print where everything is, or what went wrong (exit 1)."""
-    check_inputs(scenario, duration_s, out, seed)
+def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1, *, viewer: ViewerConfig | None = None,
+             video: Path | None = None) -> int:
+    """Run the graph until the episode ends (served live to Foxglove with a viewer config); draw the episode from its
+    recording (and animate it to `video`); print where everything is, or what went wrong (exit 1)."""
+    check_inputs(scenario, duration_s, out, seed, video)
     paths = DemoPaths(out)
-    graph = demo_graph(paths, scenario, duration_s, seed)
+    graph = with_viewer(demo_graph(paths, scenario, duration_s, seed), viewer)
     try:
         paths.graph.write_text(config_lib.dump(graph))
     except OSError as err:
@@ -96,13 +104,28 @@ def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1) -> int
     launcher.run()
     print(f"demo: graph stopped after {time.monotonic() - start:.0f} s", file=sys.stderr)
     summary, problems = check_results(paths, launcher)
+    if not problems:
+        problems = draw_episode(paths, video)
     if problems:
         for problem in problems:
             print(f"demo: {problem}", file=sys.stderr)
         print(f"demo: failed; what is in {paths.out} is incomplete", file=sys.stderr)
         return 1
-    print(dumps_strict({"episode": summary, "recording": str(paths.recording), "picture": str(paths.picture)}))
+    printed = {"episode": summary, "recording": str(paths.recording), "picture": str(paths.picture)}
+    print(dumps_strict(printed | ({"video": str(video)} if video is not None else {})))
     return 0
+
+
+def draw_episode(paths: DemoPaths, video: Path | None) -> list[str]:
+    """The episode picture (and the animation) drawn from the recording; one line per failure."""
+    from ssf_common.render.video import render_recording
+
+    print("demo: drawing the episode from the recording", file=sys.stderr)
+    try:
+        render_recording(paths.recording, picture=paths.picture, video=video, progress=sys.stderr)
+    except SsfError as err:
+        return [f"cannot draw the episode: {err}"]
+    return []
 
 
 def check_results(paths: DemoPaths, launcher: Launcher) -> tuple[dict[str, Any] | None, list[str]]:

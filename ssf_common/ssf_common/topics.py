@@ -19,3 +19,4 @@ GT_OBSTACLES = "/sim/ground_truth/obstacles"
 GT_ODOM = "/sim/ground_truth/odom"
 EPISODE = "/sim/episode"
 MARKERS = "/sim/markers"
+SSF_MARKERS = "/ssf/markers"  # perceived obstacles, their velocity arrows and the plan (visualization_msgs/MarkerArray)

@@ -15,6 +15,7 @@ from ssf_common.config import Section
 from ssf_common.conversions import mask_from_cloud, mask_to_cloud, obstacles_to_msg, scene_flow_from_cloud, semantic_flow_to_cloud
 from ssf_common.errors import MessageError
 from ssf_common.geometry.fitting import weighted_kabsch
+from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, LoopStatus
 from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles
@@ -43,6 +44,8 @@ class FusionNode(Node):
         self.result_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, QOS_DEFAULT)
         self.obstacle_pub = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, QOS_DEFAULT)
         self.state_pub = self.create_publisher("ssf_interfaces/msg/FusionState", topics.FUSION_STATE, QOS_DEFAULT)
+        self.markers, self.marker_pub = MarkerSet(), self.create_publisher(
+            "visualization_msgs/msg/MarkerArray", topics.SSF_MARKERS, QOS_DEFAULT)
         self.create_timer(0.05, self.on_timer)
         self.create_timer(report_period, self._report)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
@@ -90,6 +93,7 @@ class FusionNode(Node):
         obstacles = extract_obstacles(result.points, result.flow, result.segmentation, ego, self.dt, result.stamp_ns,
                                       result.frame_id, self.config.obstacles)
         self.obstacle_pub.publish(obstacles_to_msg(obstacles))
+        self.marker_pub.publish(self.markers.obstacles(obstacles))
 
     def _publish_state(self, status: LoopStatus) -> None:
         self.state_pub.publish(messages.msg_type("ssf_interfaces/msg/FusionState")(

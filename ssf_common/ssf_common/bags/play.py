@@ -173,6 +173,9 @@ def run_play(args: argparse.Namespace) -> int:
         topics=tuple(args.topics) if args.topics else None,
         delay_s=require_finite(args.delay, "--delay", at_least=0.0),
     )
+    from ssf_common.viewer.command import BackgroundViewer, viewer_config
+
+    viewer_settings = viewer_config(args, "ssf bag play")
     stop = threading.Event()
     with open_bag(args.path) as bag:
         info, timeline = bag.info, bag.timeline
@@ -182,12 +185,15 @@ def run_play(args: argparse.Namespace) -> int:
         if timeline.problem():
             print(f"ssf: warning: {args.path}: {timeline.problem()}; skipping them", file=sys.stderr)
         node = Node("ssf_bag_player", argv=["--ros-args", *args.ros_args] if args.ros_args else [])
+        viewer = BackgroundViewer(viewer_settings) if viewer_settings else None  # serves what the player publishes
         previous = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
         try:
             stats = Player(bag, options, node, stop).run()
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
+            if viewer is not None:
+                viewer.close()
             node.destroy_node()
             shutdown()
     skipped = f", skipped {stats.skipped} with implausible timestamps" if stats.skipped else ""
@@ -198,6 +204,8 @@ def run_play(args: argparse.Namespace) -> int:
 
 def add_parser(bag_commands: argparse._SubParsersAction) -> None:
     """Register `ssf bag play`."""
+    from ssf_common.viewer.command import add_foxglove_options
+
     parser = bag_commands.add_parser("play", help="replay a bag into the graph", description=run_play.__doc__)
     parser.add_argument("path", help="bag directory, or a .mcap / .db3 file")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (default 1.0)")
@@ -205,6 +213,7 @@ def add_parser(bag_commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--clock", action="store_true", help="publish /clock at 100 Hz of bag time")
     parser.add_argument("--topics", nargs="+", metavar="TOPIC", help="replay only these topics")
     parser.add_argument("--delay", type=float, default=0.0, help="seconds to wait (for discovery) before playing")
+    add_foxglove_options(parser)
     parser.add_argument("--ros-args", nargs=argparse.REMAINDER, dest="ros_args", help=argparse.SUPPRESS)
     parser.set_defaults(func=run_play)
 

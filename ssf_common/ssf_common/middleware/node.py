@@ -296,6 +296,14 @@ class Node:
         self._subscriptions.append(subscription)
         return subscription
 
+    def destroy_subscription(self, subscription: Subscription) -> bool:
+        """Stop one subscription (as rclpy's Node.destroy_subscription); False when it is not this node's."""
+        if subscription not in self._subscriptions:
+            return False
+        self._subscriptions.remove(subscription)
+        subscription.transport.destroy()
+        return True
+
     def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
         """Call back every period_s seconds of the node's clock."""
         if period_s <= 0:
