@@ -18,8 +18,8 @@ ARROW_COLOUR = "#ffd21f"
 PLAN_COLOUR = "#21c45d"
 EGO_COLOUR = "#e0218a"
 ODOMETRY_COLOUR = "#19b5c8"
-INSTANCE_COLOURS = ("#e6194b", "#3cb44b", "#4363d8", "#f58231", "#911eb4", "#42d4f4", "#f032e6", "#bfef45",
-                    "#9a6324", "#800000", "#808000", "#000075")
+INSTANCE_COLOURS = ("#3cb44b", "#42d4f4", "#f58231", "#911eb4", "#4363d8", "#f032e6", "#bfef45", "#9a6324",
+                    "#fabed4", "#808000")  # no red: red is what the perception saw
 BACKGROUND = "#1e1f24"
 OVERVIEW_MARGIN_M = 40.0
 
