@@ -25,7 +25,8 @@ def strict_loads(text: str):
 def demo_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     out = tmp_path_factory.mktemp("demo") / "run"
     result = subprocess.run(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--duration", str(DURATION_S), "--out", str(out)],
+        [sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--duration", str(DURATION_S), "--out", str(out),
+         "--video", str(out.parent / "episode.gif"), "--foxglove", "0"],
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
     return result, out
@@ -43,6 +44,19 @@ def test_demo_exits_zero_and_prints_where_everything_is(demo_run):
     assert episode["outcome"] == "running" and episode["distance"] > 1.0
     assert (out / "episode.png").read_bytes()[:4] == b"\x89PNG"
     assert "sim_bridge" in (out / "graph.yaml").read_text()
+
+
+def test_demo_serves_the_graph_live_and_animates_the_episode(demo_run):
+    from PIL import Image
+
+    result, out = demo_run
+    assert result.returncode == 0, result.stderr[-4000:]
+    assert "[viewer] view: Foxglove WebSocket server on ws://127.0.0.1:" in result.stderr  # loopback by default
+    assert strict_loads(result.stdout)["video"] == str(out.parent / "episode.gif")
+    with open_bag(out / "recording") as bag:
+        scans = bag.topics["/lidar/points"].message_count
+    with Image.open(out.parent / "episode.gif") as gif:
+        assert scans - 3 <= gif.n_frames <= scans  # a frame per recorded scan placed by a true pose
 
 
 def test_demo_recording_holds_the_closed_loop(demo_run):

@@ -189,3 +189,12 @@ def test_frames_held_in_memory_animate_too(recording, tmp_path):
 def test_a_video_name_that_says_no_format_is_refused_first(tmp_path, name):
     with pytest.raises(ConfigError, match="must end in .mp4 or .gif"):
         render_recording(tmp_path / "nothing", video=tmp_path / name)
+
+
+def test_demo_refuses_a_video_it_cannot_write_before_starting(tmp_path, capsys):
+    from ssf_common.cli import main
+
+    assert main(["demo", "--out", str(tmp_path / "out"), "--video", str(tmp_path / "episode.avi")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("ssf: error: --video ") and "must end in .mp4 or .gif" in line
+    assert not (tmp_path / "out" / "recording").exists()

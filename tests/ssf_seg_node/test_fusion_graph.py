@@ -58,15 +58,16 @@ def graph():
     for node in nodes:
         node.spin_in_thread()
     probe = Node("probe")
-    results, obstacles, states = [], [], []
+    results, obstacles, states, markers = [], [], [], []
     probe.create_subscription("sensor_msgs/msg/PointCloud2", "/ssf/semantic_flow", results.append)
     probe.create_subscription("ssf_interfaces/msg/ObstacleArray", "/ssf/obstacles", obstacles.append)
     probe.create_subscription("ssf_interfaces/msg/FusionState", "/ssf/fusion_state", states.append)
+    probe.create_subscription("visualization_msgs/msg/MarkerArray", "/ssf/markers", markers.append)
     flows = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/ssf/flow")
     probe.spin_in_thread()
     scans = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
     assert wait_until(lambda: scans.get_subscription_count() > 0 and flows.get_subscription_count() >= 2)
-    yield scans, flows, results, obstacles, states
+    yield scans, flows, results, obstacles, states, markers
     for node in nodes:
         node.request_shutdown()
         node.on_shutdown()
@@ -75,7 +76,7 @@ def graph():
 
 
 def test_the_node_loop_converges_on_replayed_scans(graph, capfd):
-    scans, flows, results, obstacles, states = graph
+    scans, flows, results, obstacles, states, markers = graph
     flows.publish(xyz_to_cloud(np.zeros((10, 3), np.float32), messages.header(1, "lidar")))  # no flow fields
     pair = synthetic_pair(seed=2, agents=3, points=8192)
     scans.publish(xyz_to_cloud(pair.pc1, messages.header(1_000_000_000, "lidar")))
@@ -93,4 +94,7 @@ def test_the_node_loop_converges_on_replayed_scans(graph, capfd):
     assert found.frame_id == "lidar" and len(found) == result.segmentation.num_instances
     assert all(np.linalg.norm(found.velocities[:, :2], axis=1) > 0.5)  # moving objects, ego motion removed
     assert [state.iteration for state in states] == list(range(len(states))) and states[-1].converged
+    assert wait_until(lambda: len(markers) == 1)  # the same obstacles as boxes for RViz / Foxglove
+    boxes = [m for m in markers[0].markers if m.ns == "obstacles"]
+    assert len(boxes) == len(found) and all(m.header.frame_id == "lidar" for m in boxes)
     assert "dropped a message on /ssf/flow" in capfd.readouterr().err
