@@ -10,10 +10,12 @@ from ssf_common.viewer.command import add_foxglove_options
 
 def register(groups: CommandGroups) -> None:
     """Add ssf_common's commands."""
+    from ssf_common.render import command as render
     from ssf_common.viewer import command as view
 
     _register_graph_commands(groups)
     view.add_parser(groups.top)
+    render.add_parser(groups.top)
     _register_bag_commands(groups)
     _register_bench_commands(groups)
 

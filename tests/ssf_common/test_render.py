@@ -198,3 +198,18 @@ def test_demo_refuses_a_video_it_cannot_write_before_starting(tmp_path, capsys):
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert line.startswith("ssf: error: --video ") and "must end in .mp4 or .gif" in line
     assert not (tmp_path / "out" / "recording").exists()
+
+
+def test_render_command_draws_any_recording_with_settings(recording, tmp_path, capsys):
+    import json
+
+    from ssf_common.cli import main
+
+    assert main(["render", str(recording), "--video", str(tmp_path / "a.gif"), "-p", "stride:=3",
+                 "-p", "size_px:=160"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["frames"] == 4 and printed["video"] == str(tmp_path / "a.gif") and printed["picture"] is None
+    assert main(["render", str(recording)]) == 2
+    assert "nothing to draw" in capsys.readouterr().err
+    assert main(["render", str(recording), "--picture", str(tmp_path / "p.png"), "-p", "stride:=0"]) == 2
+    assert "stride" in capsys.readouterr().err

@@ -6,3 +6,6 @@ ROS 2 machine.
 subscriptions made when a client first subscribes), `command` the `ssf view` command and the `--foxglove` options
 that `ssf demo`, `ssf launch` and `ssf bag play` share, `layout` the shipped Foxglove layout.
 """
+
+LOOPBACK = "127.0.0.1"
+DEFAULT_PORT = 8765

@@ -7,11 +7,11 @@ import sys
 import threading
 from typing import TYPE_CHECKING, Any
 
-from ssf_common.config import build
-from ssf_common.viewer.server import DEFAULT_PORT, LOOPBACK, ViewerConfig
+from ssf_common.viewer import DEFAULT_PORT, LOOPBACK
 
 if TYPE_CHECKING:
     from ssf_common.launch import GraphSpec
+    from ssf_common.viewer.server import ViewerConfig
 
 VIEWER_NODE = "viewer"
 
@@ -42,6 +42,9 @@ def add_foxglove_options(parser: argparse.ArgumentParser) -> None:
 
 def viewer_config(args: argparse.Namespace, source: str) -> ViewerConfig | None:
     """The viewer a command's --foxglove options ask for (None without --foxglove); ConfigError for a bad one."""
+    from ssf_common.config import build
+    from ssf_common.viewer.server import ViewerConfig
+
     if getattr(args, "foxglove", None) is None:
         return None
     return build(ViewerConfig, {"port": args.foxglove, "host": args.foxglove_host}, source=f"{source} --foxglove")
@@ -63,9 +66,10 @@ def with_viewer(graph: GraphSpec, config: ViewerConfig | None) -> GraphSpec:
 
 def run_view(args: argparse.Namespace) -> int:
     """Serve the graph until SIGINT/SIGTERM."""
+    from ssf_common.config import build
     from ssf_common.middleware import run
     from ssf_common.viewer.node import make_viewer_class
-    from ssf_common.viewer.server import FoxgloveServer
+    from ssf_common.viewer.server import FoxgloveServer, ViewerConfig
 
     config = build(ViewerConfig, {"port": args.port, "host": args.host}, source="ssf view")
     server = FoxgloveServer(config)

@@ -11,9 +11,8 @@ from pydantic import Field
 
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError, MessageError
+from ssf_common.viewer import DEFAULT_PORT, LOOPBACK
 
-LOOPBACK = "127.0.0.1"
-DEFAULT_PORT = 8765
 SCHEMA_ENCODING = "ros2msg"  # the .msg text with its dependencies, as rosbag2 stores it in MCAP
 MESSAGE_ENCODING = "cdr"  # the serialized message with its 4-byte encapsulation header, as rmw hands it over
 
