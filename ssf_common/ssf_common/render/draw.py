@@ -200,14 +200,24 @@ def _draw_overview(ax: Any, last: ViewFrame, overview: np.ndarray, track: Episod
 
 
 def _draw_fusion(ax: Any, fusion: FusionLog) -> None:
-    iterations = np.unique(fusion.iterations)
-    values = [fusion.delta_total[fusion.iterations == i] for i in iterations]
-    ax.boxplot(values, positions=iterations, widths=0.5, showfliers=False)
-    jitter = np.random.default_rng(0).uniform(-0.15, 0.15, len(fusion.iterations))
-    ax.scatter(fusion.iterations + jitter, fusion.delta_total, s=6, alpha=0.5,
-               c=np.where(fusion.converged, PLAN_COLOUR, PERCEIVED_COLOUR), zorder=3)
-    ax.set_yscale("log")
+    scans = len(np.unique(fusion.stamps))
     ax.set_xlabel("fusion iteration")
     ax.set_ylabel("Δ_total (/ssf/fusion_state)")
-    ax.set_title(f"fusion loop: Δ per iteration ({len(np.unique(fusion.stamps))} scans; green: converged)",
-                 fontsize=9)
+    ax.set_title(f"fusion loop: Δ per iteration ({scans} scans; green: converged)", fontsize=9)
+    finite = np.isfinite(fusion.delta_total) & (fusion.delta_total > 0)
+    if not finite.any():
+        ax.text(0.5, 0.5, f"no finite Δ > 0 among {len(fusion.delta_total)} states\n"
+                f"({int(np.isinf(fusion.delta_total).sum())} inf, {int(np.isnan(fusion.delta_total).sum())} NaN)",
+                ha="center", va="center", transform=ax.transAxes, fontsize=9)
+        return
+    iterations, deltas = fusion.iterations[finite], fusion.delta_total[finite]
+    shown = np.unique(iterations)
+    ax.boxplot([deltas[iterations == i] for i in shown], positions=shown, widths=0.5, showfliers=False)
+    jitter = np.random.default_rng(0).uniform(-0.15, 0.15, len(iterations))
+    ax.scatter(iterations + jitter, deltas, s=6, alpha=0.5,
+               c=np.where(fusion.converged[finite], PLAN_COLOUR, PERCEIVED_COLOUR), zorder=3)
+    ax.set_yscale("log")
+    hidden = int((~finite).sum())
+    if hidden:
+        ax.text(0.98, 0.98, f"{hidden} states with Δ = inf/NaN/0 not drawn", ha="right", va="top",
+                transform=ax.transAxes, fontsize=7)

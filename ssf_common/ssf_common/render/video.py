@@ -80,8 +80,10 @@ class VideoWriter:
 
 
 def write_video(frames: Iterable[ViewFrame], path: str | Path, config: RenderConfig | None = None, *,
-                title: str = "", progress: IO[str] | None = None, total: int | None = None) -> int:
-    """Animate frames (in time order, e.g. kept in memory by a navigation trial) into `path`; the frame count."""
+                title: str = "", start_ns: int | None = None, progress: IO[str] | None = None,
+                total: int | None = None) -> int:
+    """Animate frames (in time order, e.g. kept in memory by a navigation trial) into `path`, their times counted
+    from `start_ns` (default: the first frame's); the frame count."""
     from ssf_common.render.draw import FrameDrawer
 
     config = config or RenderConfig()
@@ -89,7 +91,7 @@ def write_video(frames: Iterable[ViewFrame], path: str | Path, config: RenderCon
     with VideoWriter(path, config.fps) as writer:
         for frame in frames:
             if drawer is None:
-                drawer = FrameDrawer(config, frame.stamp_ns, title)
+                drawer = FrameDrawer(config, frame.stamp_ns if start_ns is None else start_ns, title)
             writer.append(drawer.draw(frame))
             _say_progress(progress, writer.frames, total)
     if drawer is not None:
@@ -131,7 +133,9 @@ def render_recording(recording: str | Path, *, picture: str | Path | None = None
         title = title or f"{Path(recording).resolve().parent.name}"
         count = 0
         if video is not None:
-            count = write_video(frames, video, config, title=title, progress=progress, total=len(planned))
+            start = int(track.truth.stamps[0]) if len(track.truth) else None
+            count = write_video(frames, video, config, title=title, start_ns=start, progress=progress,
+                                total=len(planned))
         else:
             for _ in frames:
                 pass
