@@ -129,12 +129,16 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["launch", graph_file(f), f"--duration={d(not_positive())}"],
         lambda d, f: ["launch", graph_file(f), "-p", d(bad_overrides())],
         lambda d, f: ["launch", str(f / "missing.yaml")],
+        lambda d, f: ["launch", graph_file(f), f"--foxglove={d(bad_ports())}"],
     ),
     "demo": one_of(
         lambda d, f: ["demo", "--out", str(f / "o"), f"--duration={d(not_positive())}"],
         lambda d, f: ["demo", "--out", str(f / "o"), f"--seed={d(bad_seeds())}"],
         lambda d, f: ["demo", "--out", str(f / "o"), "--scenario", hostile_yaml_file(d, f)],
         lambda d, f: ["demo", "--out", bad_output(d, f, folder_too=False)],
+        lambda d, f: ["demo", "--out", str(f / "o"), f"--foxglove={d(bad_ports())}"],
+        lambda d, f: ["demo", "--out", str(f / "o"), "--video",
+                      d(st.sampled_from([str(f / "v.avi"), str(f / "v"), "/proc/nope/v.gif"]))],
     ),
     "record": one_of(
         lambda d, f: ["record", f"--chunk-bytes={d(st.integers(max_value=1023))}"],
@@ -147,6 +151,23 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bag", "play", str(f / "no_bag"), f"--rate={d(not_positive())}"],
         lambda d, f: ["bag", "play", str(f / "no_bag"), f"--delay={d(negative())}"],
         lambda d, f: ["bag", "play", hostile_bag(d, f, readable=False)],
+        lambda d, f: ["bag", "play", str(f / "no_bag"), f"--foxglove={d(bad_ports())}"],
+    ),
+    "view": one_of(
+        lambda d, f: ["view", f"--port={d(bad_ports())}"],
+        lambda d, f: ["view", "--port", "0", "--host", d(st.sampled_from(["", "no.such.host.invalid", "999.1.1.1"]))],
+    ),
+    "render": one_of(
+        lambda d, f: ["render", hostile_bag(d, f), "--picture", str(f / "p.png")],
+        lambda d, f: ["render", str(f / "no_bag"), "--picture", str(f / "p.png"), "-p", d(bad_overrides())],
+        lambda d, f: ["render", str(f / "no_bag"), "--video", bad_output(d, f)],
+        lambda d, f: ["render", str(f / "no_bag")],
+    ),
+    "bench view": one_of(
+        lambda d, f: ["bench", "view", f"--rate={d(not_positive())}"],
+        lambda d, f: ["bench", "view", f"--duration={d(not_positive())}"],
+        lambda d, f: ["bench", "view", f"--points={d(st.integers(max_value=0))}"],
+        lambda d, f: ["bench", "view", "--json", bad_output(d, f)],
     ),
     "bench transport": one_of(
         lambda d, f: ["bench", "transport", f"--rate={d(not_positive())}"],
@@ -174,6 +195,11 @@ HOSTILE: dict[str, Case] = {
     "eval flow": lambda d, f: ["eval", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
     "bench flow": lambda d, f: ["bench", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
 }
+
+
+def bad_ports() -> st.SearchStrategy[int]:
+    """Port numbers no server can listen on."""
+    return st.one_of(st.integers(max_value=-1), st.integers(min_value=65536))
 
 
 def hostile_bag(draw: st.DrawFn, folder: Path, readable: bool = True) -> str:
