@@ -76,6 +76,10 @@ def make_viewer_class() -> type:
             """The graph's time: the latest /clock, or the wall clock when the graph has none."""
             return self.sim_time_ns if self.sim_time_ns is not None else time.time_ns()
 
+        def on_shutdown(self) -> None:
+            """Say what was served."""
+            self.get_logger().info(f"forwarded {self.forwarded} messages of {len(self.types)} topics")
+
         def _forward(self, topic: str, cdr: bytes) -> None:
             self.server.log(topic, cdr, self.now_ns())
             self.forwarded += 1
