@@ -105,6 +105,13 @@ class Simulator:
         cfg = self.scenario.ego
         return RouteFollower(self.world, self.lane_offset, cfg.reference_speed, cfg.length, cfg.width)
 
+    def route_waypoints(self, length: float | None = None, spacing: float = 2.0) -> np.ndarray:
+        """(N, 3) world points of the ego's lane from the start to the goal (or `length` metres along it)."""
+        end = self.world.route_length if length is None else min(float(length), self.world.route_length)
+        s = np.r_[np.arange(0.0, end, spacing), end]
+        xy = self.world.centreline.to_xy(s, np.full(len(s), self.lane_offset))
+        return np.c_[xy, self.world.ground.height(xy[:, 0], xy[:, 1])]
+
     def step(self, cmd: VelocityCommand) -> Frame:
         """Advance dt: ego follows cmd, agents move, check the episode, scan, ground truth for the last scan."""
         previous = self.frame

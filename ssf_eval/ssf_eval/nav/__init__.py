@@ -1,0 +1,1 @@
+"""Closed-loop navigation benchmark: perception sources, the in-process loop, campaigns, statistics, plots."""

@@ -1,0 +1,123 @@
+"""`ssf eval nav`: the paper's closed-loop navigation table, perception source beside perception source."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from ssf_common.cli import CommandGroups
+
+DEFAULT_AGENTS = "50,100,200,500,800,1000"
+DEFAULT_PERCEPTION = "gt,dbscan,dbscan0,ssf,follower"
+
+
+def register(groups: CommandGroups) -> None:
+    """Add `ssf eval nav`."""
+    nav = groups.eval.add_parser(
+        "nav", help="closed-loop navigation: success rate (Wilson 95 %%), time and speed per perception and density",
+        description="Seeded trials of the simulator's route (A -> B in the odometry frame, reference speed 10 m/s) "
+        "driven by the RDA-style MPC on each perception source (gt: the simulator's boxes; dbscan / dbscan0: "
+        "LiDAR clusters with tracked / zero velocity; ssf: semantic scene flow), and the simulator's rule-based "
+        "follower as a reference row. Every finished trial is appended to a JSONL file at once; --resume FILE "
+        "skips what it holds. Trial seeds are --seed .. --seed + trials - 1 in every cell.")
+    nav.add_argument("--agents", default=DEFAULT_AGENTS, help=f"comma-separated agent counts (default {DEFAULT_AGENTS})")
+    nav.add_argument("--perception", default=DEFAULT_PERCEPTION,
+                     help=f"comma-separated sources: gt, dbscan, dbscan0, ssf, follower (default {DEFAULT_PERCEPTION})")
+    nav.add_argument("--trials", type=int, default=20, help="trials per cell (default 20; the paper: 100)")
+    nav.add_argument("--seed", type=int, default=100, help="first trial seed (default 100; tuning used 10-19)")
+    nav.add_argument("--route-length", type=float, default=None, metavar="M",
+                     help="drive only the first M metres of the route (default: all of it, ~961 m)")
+    nav.add_argument("--time-limit", type=float, default=None, metavar="S",
+                     help="seconds per trial (default: the scenario's limit scaled to the route length, at least 60)")
+    nav.add_argument("--pose", choices=("gt", "ssf"), default="gt", help="ego pose from ground truth or SSF odometry")
+    where = nav.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="local process pool size (default: CPU count)")
+    where.add_argument("--ray", metavar="ADDRESS", help="run trials on Ray: 'auto', 'ray://HOST:PORT' or 'local' "
+                       "(needs pip install '.[ray]')")
+    nav.add_argument("--resume", type=Path, metavar="FILE", help="trial log (JSONL) to append to; trials it holds are "
+                     "skipped (default: a new nav_trials_<time>.jsonl here)")
+    nav.add_argument("--json", type=Path, help="write the table (one row per cell) and the effective config here")
+    nav.add_argument("--plot", type=Path, metavar="PNG", help="success rate, time and speed against agents")
+    nav.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                     help="planner config override, e.g. -p horizon:=12 -p obstacles.max_obstacles:=8")
+    nav.set_defaults(func=run_eval)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    """ssf eval nav."""
+    import os
+
+    from ssf_common.config import build
+    from ssf_common.errors import ConfigError
+    from ssf_common.paths import check_writable
+    from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
+    from ssf_eval.nav.loop import PERCEPTION_NAMES
+    from ssf_eval.nav.stats import summarise
+    from ssf_eval.results import write_result
+    from ssf_flow_node.cli import parse_overrides
+    from ssf_planner_node.core.config import PlannerConfig
+
+    perceptions = [name.strip() for name in args.perception.split(",") if name.strip()]
+    unknown = [name for name in perceptions if name not in PERCEPTION_NAMES]
+    if unknown or not perceptions:
+        raise ConfigError(f"--perception: unknown source '{(unknown or [''])[0]}'; choose from {', '.join(PERCEPTION_NAMES)}")
+    agents = _counts(args.agents)
+    if args.pose == "ssf":
+        raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), not on this branch yet; use --pose gt")
+    if args.route_length is not None and args.route_length < 20:
+        raise ConfigError(f"--route-length must be at least 20 m, got {args.route_length:g}")
+    overrides = parse_overrides(args.param, "-p")
+    planner = build(PlannerConfig, overrides, source="-p")
+    for path, what in ((args.json, "result file"), (args.plot, "picture")):
+        if path is not None:
+            check_writable(path, what)
+    log_path = args.resume or Path(f"nav_trials_{time.strftime('%Y%m%d_%H%M%S')}.jsonl")
+    check_writable(log_path, "trial log")
+    specs = campaign_specs(perceptions, agents, args.trials, args.seed, args.route_length, args.time_limit, args.pose,
+                           overrides)
+    runner = RayRunner(args.ray) if args.ray else LocalRunner(args.workers or os.cpu_count() or 1)
+    print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "
+          f"route {args.route_length or 'full'} m, trial log {log_path}", file=sys.stderr)
+    records = run_campaign(specs, TrialLog(log_path), runner)
+    cells = summarise(records, planner.reference_speed)
+    print(format_table(cells))
+    protocol = {"agents": agents, "perception": perceptions, "trials": args.trials, "seed": args.seed,
+                "route_length": args.route_length, "time_limit": args.time_limit, "pose": args.pose,
+                "trial_log": str(log_path)}
+    if args.json:
+        write_result(args.json, {"protocol": protocol, "cells": [cell.to_json() for cell in cells]},
+                     {"planner": planner, "protocol": protocol})
+    if args.plot:
+        from ssf_eval.nav.plot import plot_cells
+
+        print(plot_cells(cells, args.plot, f"{args.trials} trials per cell, route {args.route_length or 'full'} m"),
+              file=sys.stderr)
+    return 0
+
+
+def format_table(cells) -> str:
+    """The paper's table: success (with its interval), time and average speed, one row per cell."""
+    lines = ["| perception | agents | success (95 % CI) | time (s) | avg speed (m/s) | collisions | timeouts | stuck | "
+             "BARN score | trials |", "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for cell in cells:
+        low, high = cell.success_ci95
+        time_s = "–" if cell.navigation_time_s is None else f"{cell.navigation_time_s:.1f}"
+        speed = "–" if cell.average_speed_mps is None else f"{cell.average_speed_mps:.2f}"
+        lines.append(f"| {cell.perception} | {cell.agents} | {cell.success_rate:.2f} ({low:.2f}–{high:.2f}) | {time_s} | "
+                     f"{speed} | {cell.collisions} | {cell.timeouts} | {cell.stuck} | {cell.barn_score:.3f} | "
+                     f"{cell.trials} |")
+    return "\n".join(lines)
+
+
+def _counts(text: str) -> list[int]:
+    from ssf_common.errors import ConfigError
+
+    try:
+        counts = [int(item) for item in text.split(",") if item.strip()]
+    except ValueError:
+        raise ConfigError(f"--agents expects comma-separated integers, got {text!r}") from None
+    if not counts or min(counts) < 0:
+        raise ConfigError(f"--agents expects counts >= 0, got {text!r}")
+    return counts

@@ -1,0 +1,186 @@
+"""Perception sources of the navigation benchmark, all feeding the same planner: the simulator's boxes (`gt`),
+DBSCAN clusters of the scan tracked between frames (`dbscan`) or standing still (`dbscan0`), and semantic scene
+flow (`ssf`: the flow <-> segmentation loop, obstacles from the moving instances). Each turns one simulator frame
+into obstacles in the odometry frame; only `dbscan*` and `ssf` read the LiDAR scan."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+from pydantic import Field
+
+from sim_bridge.ros_messages import agent_obstacles
+from sim_bridge.simulator import Frame
+from ssf_common.config import Section
+from ssf_common.errors import ConfigError
+from ssf_common.geometry.boxes import bounding_box
+from ssf_common.geometry.clustering import dbscan
+from ssf_common.geometry.ground import height_above_ground
+from ssf_common.geometry.labels import label_counts
+from ssf_common.geometry.sampling import voxel_indices
+from ssf_common.records import ObstacleKind, Obstacles
+
+ODOM_FRAME = "odom"
+
+
+@dataclass(frozen=True)
+class Observation:
+    """What perception gets each tick: the simulator frame and where the sensor is in the odometry frame."""
+
+    frame: Frame
+    lidar_pose: np.ndarray  # (4, 4) odom <- lidar at the frame's stamp
+    world_to_odom: np.ndarray  # (4, 4) odom <- world (ground truth, for `gt` only)
+
+
+class Perception(Protocol):
+    """A perception source: obstacles (odometry frame, with velocities) from each frame in turn."""
+
+    name: str
+    reads_scan: bool
+
+    def observe(self, observation: Observation) -> Obstacles:
+        """Obstacles seen in this frame (stamped when they were seen)."""
+
+
+class DbscanConfig(Section):
+    """LiDAR clustering as common stacks do it (rda_ros: DBSCAN, minimum-area rectangles)."""
+
+    max_range: float = Field(40.0, gt=0.0, description="points farther from the sensor are ignored (m)")
+    cell: float = Field(0.2, gt=0.0, description="one point per ground-plane cell of this edge (m) before clustering")
+    ground_cell: float = Field(2.0, gt=0.0, description="grid cell of the ground height estimate (m)")
+    min_height: float = Field(0.3, ge=0.0, description="points lower above the ground are ground (m)")
+    max_height: float = Field(2.5, gt=0.0, description="points higher above the ground are ignored: canopy, roofs (m)")
+    eps: float = Field(0.5, gt=0.0, description="DBSCAN neighbourhood on the ground plane (m)")
+    min_samples: int = Field(5, ge=1, description="DBSCAN core point threshold")
+    min_points: int = Field(5, ge=1, description="smaller clusters are dropped")
+    vehicle_length: float = Field(2.2, gt=0.0, description="boxes at least this long are vehicles, else pedestrians")
+    gate: float = Field(1.5, gt=0.0, description="tracking: a cluster continues the track whose predicted centre is "
+                        "nearest, within this distance (m)")
+    smoothing: float = Field(0.5, gt=0.0, le=1.0, description="tracking: weight of the newest velocity measurement")
+    max_speed: float = Field(15.0, gt=0.0, description="tracking: faster measurements are association errors (m/s)")
+    static_extent: float = Field(8.0, gt=0.0, description="clusters longer than this (m) are structure: velocity 0")
+
+
+class GroundTruthPerception:
+    """The simulator's agents as boxes with their exact velocities (no LiDAR)."""
+
+    name = "gt"
+    reads_scan = False
+
+    def __init__(self, max_range: float = 60.0) -> None:
+        self.max_range = max_range
+
+    def observe(self, observation: Observation) -> Obstacles:
+        """Every agent within range, in the odometry frame."""
+        frame = observation.frame
+        near = np.linalg.norm(frame.agents.position[:, :2] - frame.base_pose[:2, 3], axis=1) <= self.max_range
+        boxes = agent_obstacles(frame.agents.take(near), frame.stamp_ns)
+        return boxes.transformed(observation.world_to_odom, ODOM_FRAME)
+
+
+@dataclass
+class _Tracks:
+    """Cluster tracks in the odometry frame: centres, velocities, ages, ids."""
+
+    centres: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    velocities: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    ages: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    stamp_ns: int = -1
+
+
+class DbscanPerception:
+    """Non-ground points -> DBSCAN clusters -> minimum-area boxes; velocity from nearest-centre tracking between
+    frames (gated, smoothed), or zero for the `dbscan0` variant."""
+
+    reads_scan = True
+
+    def __init__(self, config: DbscanConfig, track: bool = True) -> None:
+        self.config = config
+        self.track = track
+        self.name = "dbscan" if track else "dbscan0"
+        self._tracks = _Tracks()
+        self._next_id = 1
+
+    def observe(self, observation: Observation) -> Obstacles:
+        """Clusters of this scan as boxes in the odometry frame, with tracked velocities."""
+        frame = observation.frame
+        points = clustered_points(frame.scan.points, self.config)
+        odom = points @ observation.lidar_pose[:3, :3].T + observation.lidar_pose[:3, 3]
+        labels, count = dbscan(odom[:, :2], self.config.eps, self.config.min_samples)
+        sizes_of = label_counts(labels[labels >= 0], count)
+        keep = np.flatnonzero(sizes_of >= self.config.min_points)
+        order = np.argsort(labels, kind="stable")
+        members = np.split(odom[order], np.searchsorted(labels[order], np.arange(count + 1)))[1:-1]
+        boxes = [bounding_box(members[k]) for k in keep]
+        centres = np.array([members[k][:, :2].mean(axis=0) for k in keep]).reshape(-1, 2)
+        sizes = np.array([box.size for box in boxes]).reshape(-1, 3)
+        velocities, ids = self._velocities(centres, sizes, frame.stamp_ns)
+        kinds = np.where(sizes[:, 0] >= self.config.vehicle_length, ObstacleKind.VEHICLE, ObstacleKind.PEDESTRIAN)
+        return Obstacles(frame.stamp_ns, ODOM_FRAME, ids=ids, kinds=kinds,
+                         centres=np.array([box.centre for box in boxes]).reshape(-1, 3), sizes=sizes,
+                         yaws=np.array([box.yaw for box in boxes]), velocities=np.c_[velocities, np.zeros(len(ids))],
+                         point_counts=sizes_of[keep])
+
+    def _velocities(self, centres: np.ndarray, sizes: np.ndarray, stamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """Associate clusters with the previous frame's tracks; velocities (M, 2) and track ids (M,)."""
+        cfg, tracks = self.config, self._tracks
+        count = len(centres)
+        velocities, ids, ages = np.zeros((count, 2)), np.zeros(count, np.int64), np.zeros(count, np.int64)
+        dt = (stamp_ns - tracks.stamp_ns) * 1e-9 if tracks.stamp_ns >= 0 else 0.0
+        matched = match_nearest(tracks.centres + tracks.velocities * dt, centres, cfg.gate) if dt > 0 else \
+            np.full(count, -1)
+        for i, previous in enumerate(matched):
+            if previous < 0:
+                ids[i], self._next_id = self._next_id, self._next_id + 1
+                continue
+            ids[i], ages[i] = tracks.ids[previous], tracks.ages[previous] + 1
+            measured = (centres[i] - tracks.centres[previous]) / dt
+            if np.linalg.norm(measured) <= cfg.max_speed:
+                velocities[i] = cfg.smoothing * measured + (1 - cfg.smoothing) * tracks.velocities[previous]
+        velocities[sizes[:, 0] > cfg.static_extent] = 0.0
+        self._tracks = _Tracks(centres, velocities, ages, ids, stamp_ns)
+        if not self.track:
+            return np.zeros((count, 2)), ids
+        return np.where(ages[:, None] >= 2, velocities, 0.0), ids
+
+
+def clustered_points(points: np.ndarray, config: DbscanConfig) -> np.ndarray:
+    """The scan points DBSCAN looks at: within range, above the ground, below the canopy, one per ground-plane cell
+    (a bird's-eye view, like the 2-D scans rda_ros clusters)."""
+    points = np.asarray(points, dtype=np.float64)
+    points = points[np.hypot(points[:, 0], points[:, 1]) <= config.max_range]
+    height = height_above_ground(points, config.ground_cell)
+    points = points[(height >= config.min_height) & (height <= config.max_height)]
+    return points[voxel_indices(points[:, :2], config.cell)] if len(points) else points
+
+
+def match_nearest(predicted: np.ndarray, centres: np.ndarray, gate: float) -> np.ndarray:
+    """For each centre the index of the predicted track it continues (-1: new), nearest pairs first, one-to-one."""
+    matched = np.full(len(centres), -1)
+    if not len(predicted) or not len(centres):
+        return matched
+    distance = np.linalg.norm(centres[:, None, :] - predicted[None, :, :], axis=2)
+    used = np.zeros(len(predicted), bool)
+    for flat in np.argsort(distance, axis=None):
+        i, j = divmod(int(flat), len(predicted))
+        if distance[i, j] > gate:
+            break
+        if matched[i] < 0 and not used[j]:
+            matched[i], used[j] = j, True
+    return matched
+
+
+def make_perception(name: str, **settings) -> Perception:
+    """The perception source called `name` (gt | dbscan | dbscan0 | ssf)."""
+    if name == "gt":
+        return GroundTruthPerception()
+    if name in ("dbscan", "dbscan0"):
+        return DbscanPerception(settings.get("dbscan", DbscanConfig()), track=name == "dbscan")
+    if name == "ssf":
+        from ssf_eval.nav.ssf_source import SsfPerception
+
+        return SsfPerception(settings.get("ssf"))
+    raise ConfigError(f"unknown perception '{name}'; choose one of gt, dbscan, dbscan0, ssf (or follower)")

@@ -1,0 +1,45 @@
+"""The paper's navigation table as a figure: success rate (Wilson 95 % intervals), time and average speed against
+the number of agents, one line per perception source."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ssf_eval.nav.stats import CellSummary
+
+COLOURS = {"gt": "tab:green", "ssf": "tab:red", "dbscan": "tab:blue", "dbscan0": "tab:cyan", "follower": "tab:grey"}
+
+
+def plot_cells(cells: list[CellSummary], path: Path, title: str) -> str:
+    """Draw three panels to path (PNG); returns a line saying where."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, 3, figsize=(15, 4.3))
+    for perception in dict.fromkeys(cell.perception for cell in cells):
+        rows = sorted((cell for cell in cells if cell.perception == perception), key=lambda cell: cell.agents)
+        agents = [cell.agents for cell in rows]
+        colour = COLOURS.get(perception)
+        rate = [cell.success_rate for cell in rows]
+        errors = [[cell.success_rate - cell.success_ci95[0] for cell in rows],
+                  [cell.success_ci95[1] - cell.success_rate for cell in rows]]
+        axes[0].errorbar(agents, rate, yerr=errors, marker="o", capsize=3, label=perception, color=colour)
+        for axis, values in ((axes[1], [cell.navigation_time_s for cell in rows]),
+                             (axes[2], [cell.average_speed_mps for cell in rows])):
+            shown = [(a, v) for a, v in zip(agents, values) if v is not None]
+            if shown:
+                axis.plot(*zip(*shown), marker="o", label=perception, color=colour)
+    for axis, label in zip(axes, ("success rate (95 % Wilson interval)", "navigation time of successes (s)",
+                                  "average speed of successes (m/s)")):
+        axis.set_xlabel("moving agents")
+        axis.set_ylabel(label)
+        axis.grid(alpha=0.3)
+    axes[0].set_ylim(-0.02, 1.02)
+    axes[0].legend(loc="lower left")
+    figure.suptitle(f"closed-loop navigation: {title}")
+    figure.tight_layout()
+    figure.savefig(path, dpi=110)
+    plt.close(figure)
+    return f"figure -> {path}"

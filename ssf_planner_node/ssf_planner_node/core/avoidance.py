@@ -1,0 +1,130 @@
+"""Collision avoidance the RDA way: each obstacle a convex polygon (its box) moving with constant velocity, and per
+obstacle and horizon step the dual variables of the distance between it and the ego footprint.
+
+For two convex polygons the RDA dual problem (max over lambda, mu >= 0 with ||A^T lambda|| <= 1 and
+G^T mu + R^T A^T lambda = 0 of lambda^T (A p - b) - g^T mu) has a closed-form optimum: n = A^T lambda is the unit
+direction that separates the two shapes the most, i.e. the direction between their closest points (or, when they
+overlap, the axis of least penetration), and its value is their signed distance. With n fixed, the distance bound
+is linear in the ego position: n . p >= h_O(n) + h_R(yaw, n) + d, where h_O and h_R are the support functions of
+obstacle and footprint. That is what the primal problem constrains; the dual step recomputes n from the new plan."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import NamedTuple
+
+import numpy as np
+
+from ssf_common.geometry.boxes import box_corners
+from ssf_common.records import Obstacles
+
+INACTIVE_OFFSET = -1.0e4  # n = 0, offset far below: the constraint of an empty slot always holds
+
+
+class Hyperplanes(NamedTuple):
+    """Per horizon step and obstacle slot: unit normal n (T, K, 2), offset c (T, K), current distance (T, K) and the
+    ego's speed towards the obstacle (T, K); the ego position p must satisfy n . p >= c + d to keep distance d."""
+
+    normals: np.ndarray
+    offsets: np.ndarray
+    distances: np.ndarray
+    closing: np.ndarray
+
+
+def footprint_corners(xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
+    """(T, 4, 2) corners of the ego footprint at positions (T, 2) and headings (T,), counter-clockwise."""
+    return np.array([box_corners(centre, length, width, heading) for centre, heading in zip(xy, yaw)]).reshape(-1, 4, 2)
+
+
+def predicted_corners(obstacles: Obstacles, times: np.ndarray, static_speed: float) -> np.ndarray:
+    """(T, M, 4, 2) footprints at times (s after the obstacles' stamp), moved with constant velocity; obstacles
+    slower than static_speed stay where they are."""
+    moving = np.linalg.norm(obstacles.velocities[:, :2], axis=1) > static_speed
+    velocities = np.where(moving[:, None], obstacles.velocities, 0.0)
+    return replace(obstacles, velocities=velocities).predicted_corners(np.asarray(times, dtype=np.float64))
+
+
+def nearest_obstacles(corners: np.ndarray, ego_xy: np.ndarray, ego_radius: float, count: int, max_range: float) -> np.ndarray:
+    """Indices of up to `count` obstacles nearest to the planned motion: smallest gap, over the horizon, between
+    each obstacle's predicted footprint and the ego's planned position at the same time (nearest first)."""
+    if corners.shape[1] == 0 or count == 0:
+        return np.zeros(0, np.int64)
+    centres = corners.mean(axis=2)  # (T, M, 2)
+    radii = np.linalg.norm(corners - centres[:, :, None, :], axis=3).max(axis=2)
+    gaps = np.linalg.norm(centres - ego_xy[:, None, :], axis=2) - radii - ego_radius  # (T, M)
+    in_range = np.linalg.norm(centres[0] - ego_xy[0], axis=1) <= max_range
+    nearest = gaps.min(axis=0)
+    order = np.argsort(np.where(in_range, nearest, np.inf), kind="stable")
+    return order[: min(count, int(in_range.sum()))]
+
+
+def _support(corners: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """max over each polygon's corners of n . corner: corners (..., 4, 2), normals (..., C, 2) -> (..., C)."""
+    return np.einsum("...vi,...ci->...cv", corners, normals).max(axis=-1)
+
+
+def _closest_direction(ego: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
+    """(..., 2) unit vector from the obstacle's closest point to the ego's (vertex-to-edge distances both ways)."""
+    best_gap = np.full(ego.shape[:-2], np.inf)
+    best_vector = np.zeros(ego.shape[:-2] + (2,))
+    for points, polygon, sign in ((ego, obstacle, 1.0), (obstacle, ego, -1.0)):
+        start = polygon
+        edge = np.roll(polygon, -1, axis=-2) - polygon  # (..., 4, 2)
+        for v in range(4):
+            point = points[..., v : v + 1, :]  # (..., 1, 2)
+            t = np.clip(np.einsum("...ei,...ei->...e", point - start, edge)
+                        / np.maximum(np.einsum("...ei,...ei->...e", edge, edge), 1e-12), 0.0, 1.0)
+            nearest = start + t[..., None] * edge
+            vector = sign * (point - nearest)  # points from the obstacle towards the ego
+            gap = np.linalg.norm(vector, axis=-1)  # (..., 4)
+            pick = gap.argmin(axis=-1)
+            gap_min = np.take_along_axis(gap, pick[..., None], axis=-1)[..., 0]
+            vec_min = np.take_along_axis(vector, pick[..., None, None], axis=-2)[..., 0, :]
+            better = gap_min < best_gap
+            best_gap = np.where(better, gap_min, best_gap)
+            best_vector = np.where(better[..., None], vec_min, best_vector)
+    length = np.linalg.norm(best_vector, axis=-1, keepdims=True)
+    return np.where(length > 1e-9, best_vector / np.maximum(length, 1e-12), 0.0)
+
+
+def separation(ego: np.ndarray, obstacle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The dual optimum for footprints ego (..., 4, 2) and obstacle (..., 4, 2): the unit direction n (..., 2) from
+    the obstacle towards the ego that separates them most, and their signed distance along it (negative: overlap)."""
+    axes = []
+    for polygon in (ego, obstacle):
+        edge = np.roll(polygon, -1, axis=-2) - polygon
+        for e in (0, 1):  # a rectangle has two edge directions; both normals and their opposites are candidates
+            normal = np.stack([edge[..., e, 1], -edge[..., e, 0]], axis=-1)
+            normal = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+            axes += [normal, -normal]
+    axes.append(_closest_direction(ego, obstacle))
+    candidates = np.stack(axes, axis=-2)  # (..., C, 2)
+    value = -_support(ego, -candidates) - _support(obstacle, candidates)  # min over ego - max over obstacle
+    valid = np.linalg.norm(candidates, axis=-1) > 0.5
+    value = np.where(valid, value, -np.inf)
+    best = value.argmax(axis=-1)
+    normal = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    return normal, np.take_along_axis(value, best[..., None], axis=-1)[..., 0]
+
+
+def hyperplanes(ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_speed: np.ndarray, length: float, width: float,
+                corners: np.ndarray, slots: int) -> Hyperplanes:
+    """The dual step: for each horizon step (T) and obstacle (M <= slots), the separating direction between the
+    planned footprint and the predicted obstacle, as a constraint on the ego position (padded to `slots`)."""
+    steps, count = len(ego_xy), corners.shape[1]
+    normals = np.zeros((steps, slots, 2))
+    offsets = np.full((steps, slots), INACTIVE_OFFSET)
+    distances = np.full((steps, slots), np.inf)
+    closing = np.zeros((steps, slots))
+    if count:
+        ego = footprint_corners(ego_xy, ego_yaw, length, width)
+        normal, distance = separation(np.broadcast_to(ego[:, None], corners.shape), corners)
+        # n . p - h_R(-n) - h_O(n) >= d, with h_R of the footprint at the planned heading, centred on p
+        ego_support = np.einsum("tvi,tmi->tmv", ego - ego_xy[:, None, :], -normal).max(axis=-1)
+        obstacle_support = np.einsum("tmvi,tmi->tmv", corners, normal).max(axis=-1)
+        normals[:, :count] = normal
+        offsets[:, :count] = obstacle_support + ego_support
+        distances[:, :count] = distance
+        heading = np.stack([np.cos(ego_yaw), np.sin(ego_yaw)], axis=1)
+        closing[:, :count] = np.maximum(-np.einsum("tmi,ti->tm", normal, heading), 0.0) * np.maximum(ego_speed, 0.0)[:, None]
+    return Hyperplanes(normals, offsets, distances, closing)

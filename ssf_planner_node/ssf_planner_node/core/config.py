@@ -1,0 +1,101 @@
+"""The planner's one config model: horizon, models, limits, weights, obstacles, solver; the same dotted names in YAML,
+ROS parameters (`-p horizon:=12`) and `ssf` flags."""
+
+from __future__ import annotations
+
+from enum import Enum
+
+from pydantic import Field, model_validator
+
+from ssf_common.config import Section
+
+
+class Model(str, Enum):
+    """Kinematic model of the ego vehicle."""
+
+    UNICYCLE = "unicycle"  # controls: acceleration, yaw rate (a differential-drive or /cmd_vel car)
+    BICYCLE = "bicycle"  # controls: acceleration, front-wheel steering angle (Ackermann)
+
+
+class VehicleConfig(Section):
+    """Footprint and limits of the ego vehicle (the simulator's defaults)."""
+
+    length: float = Field(4.69, gt=0.0, le=20.0, description="footprint length (m), centred on the state")
+    width: float = Field(1.85, gt=0.0, le=5.0, description="footprint width (m)")
+    wheelbase: float = Field(2.87, gt=0.0, le=10.0, description="bicycle model: axle distance (m)")
+    max_speed: float = Field(12.0, gt=0.0, le=40.0, description="m/s")
+    max_accel: float = Field(3.0, gt=0.0, le=20.0, description="m/s^2")
+    max_decel: float = Field(6.0, gt=0.0, le=20.0, description="m/s^2 (positive)")
+    max_yaw_rate: float = Field(1.0, gt=0.0, le=5.0, description="unicycle: rad/s")
+    max_steer: float = Field(0.6, gt=0.0, le=1.2, description="bicycle: rad")
+    max_lateral_accel: float = Field(6.0, gt=0.0, le=20.0, description="|v * yaw rate| bound (m/s^2)")
+
+
+class WeightsConfig(Section):
+    """Cost weights of the tracking problem (per horizon step)."""
+
+    lateral: float = Field(1.0, ge=0.0, description="squared distance across the route (per m^2)")
+    heading: float = Field(1.0, ge=0.0, description="squared heading error against the route (per rad^2)")
+    speed: float = Field(1.0, ge=0.0, description="squared speed error against the reference (per (m/s)^2)")
+    accel: float = Field(0.1, ge=0.0, description="squared acceleration")
+    turn: float = Field(2.0, ge=0.0, description="squared yaw rate (unicycle) or steering angle (bicycle)")
+    accel_rate: float = Field(0.1, ge=0.0, description="squared change of acceleration between steps")
+    turn_rate: float = Field(10.0, ge=0.0, description="squared change of yaw rate / steering between steps")
+    terminal: float = Field(3.0, ge=0.0, description="factor on the tracking terms of the last step")
+
+
+class ObstacleConfig(Section):
+    """Which obstacles the problem sees and how far it keeps from them (RDA's min_sd / max_sd / slack_gain)."""
+
+    max_obstacles: int = Field(10, ge=0, le=50, description="K: the obstacles nearest to the planned motion are used")
+    range: float = Field(40.0, gt=0.0, description="obstacles farther than this from the ego are ignored (m)")
+    safety_distance: float = Field(0.1, ge=0.0, description="hard: the footprints never come closer than this (m)")
+    comfort_distance: float = Field(1.0, ge=0.0, description="soft: distance below which slack_gain is paid per metre")
+    slack_gain: float = Field(30.0, ge=0.0, description="cost per metre of distance below comfort_distance, per step")
+    headway: float = Field(0.8, ge=0.0, description="soft: extra distance (s x own speed towards the obstacle) kept "
+                           "from what lies ahead, since it may stop at once")
+    static_speed: float = Field(0.01, ge=0.0, description="obstacles slower than this (m/s) are taken as static")
+
+    @model_validator(mode="after")
+    def _distances(self) -> ObstacleConfig:
+        if self.comfort_distance < self.safety_distance:
+            raise ValueError(f"comfort_distance ({self.comfort_distance}) must be at least safety_distance "
+                             f"({self.safety_distance})")
+        return self
+
+
+class SolverConfig(Section):
+    """How each tick is solved: QP solver of the CasADi wheel, primal/dual rounds, deadline."""
+
+    qp: str = Field("osqp", description="CasADi conic plugin: osqp | qrqp | highs | proxqp | daqp | qpoases")
+    iterations: int = Field(2, ge=1, le=20, description="primal QP + dual update rounds per tick (RDA's iter_num)")
+    tolerance: float = Field(0.2, gt=0.0, description="stop the rounds when the plan moves less than this (m)")
+    deadline_ms: float = Field(100.0, ge=0.0, description="a tick slower than this (wall clock) is late: its plan is not "
+                               "used; 0 = no deadline (lockstep simulation, where time waits for the planner)")
+
+
+class PlannerConfig(Section):
+    """Everything the MPC needs; the same dotted names in YAML, ROS parameters and CLI flags."""
+
+    model: Model = Model.UNICYCLE
+    horizon: int = Field(10, ge=2, le=60, description="steps in the horizon")
+    dt: float = Field(0.2, gt=0.0, le=1.0, description="seconds per horizon step")
+    control_period: float = Field(0.1, gt=0.0, le=1.0, description="seconds a command is applied (the tick period)")
+    reference_speed: float = Field(10.0, gt=0.0, le=40.0, description="cruise speed along the route (m/s)")
+    goal_decel: float = Field(1.5, gt=0.0, description="comfortable deceleration (m/s^2) for stopping at the goal")
+    goal_tolerance: float = Field(3.0, gt=0.0, description="the route is done within this distance of its end (m)")
+    stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
+    stale_after_s: float = Field(0.5, gt=0.0, description="obstacles (or odometry) older than this are stale")
+    vehicle: VehicleConfig = VehicleConfig()
+    weights: WeightsConfig = WeightsConfig()
+    obstacles: ObstacleConfig = ObstacleConfig()
+    solver: SolverConfig = SolverConfig()
+
+    @model_validator(mode="after")
+    def _speeds(self) -> PlannerConfig:
+        if self.reference_speed > self.vehicle.max_speed:
+            raise ValueError(f"reference_speed ({self.reference_speed}) is above vehicle.max_speed "
+                             f"({self.vehicle.max_speed})")
+        if self.control_period > self.dt * self.horizon:
+            raise ValueError("control_period must be shorter than the horizon (dt * horizon)")
+        return self

@@ -1,0 +1,60 @@
+"""Frames around the planner: the planar ego state from an odometry pose, obstacles moved into the route's frame
+with the pose at their stamp, and a short history of poses to look those up."""
+
+from __future__ import annotations
+
+import bisect
+from collections import deque
+
+import numpy as np
+
+from ssf_common.geometry.se3 import yaw_of
+from ssf_common.records import Obstacles, OdometryEstimate
+from ssf_planner_node.core.planner import VehicleState
+
+
+def vehicle_state(stamp_ns: int, pose: np.ndarray, speed: float) -> VehicleState:
+    """The planar state of base_link at pose (odom <- base_link) moving forward at speed."""
+    return VehicleState(int(stamp_ns), float(pose[0, 3]), float(pose[1, 3]), yaw_of(pose), float(speed))
+
+
+def state_of(odometry: OdometryEstimate) -> VehicleState:
+    """The planar state an odometry message describes (speed: its forward twist)."""
+    return vehicle_state(odometry.stamp_ns, odometry.pose, float(odometry.twist[0]))
+
+
+class PoseHistory:
+    """Recent odometry poses (odom <- base_link) by stamp, for obstacles stamped in the past."""
+
+    def __init__(self, length: int = 100) -> None:
+        self._stamps: deque[int] = deque(maxlen=length)
+        self._poses: deque[np.ndarray] = deque(maxlen=length)
+
+    def add(self, stamp_ns: int, pose: np.ndarray) -> None:
+        """Remember a pose (stamps going backwards start a new history)."""
+        if self._stamps and stamp_ns <= self._stamps[-1]:
+            self._stamps.clear()
+            self._poses.clear()
+        self._stamps.append(int(stamp_ns))
+        self._poses.append(np.asarray(pose, dtype=np.float64))
+
+    def at(self, stamp_ns: int, tolerance_ns: int = 60_000_000) -> np.ndarray | None:
+        """The pose nearest to stamp_ns, if one lies within the tolerance."""
+        if not self._stamps:
+            return None
+        stamps = list(self._stamps)
+        index = bisect.bisect_left(stamps, stamp_ns)
+        nearest = min((i for i in (index - 1, index) if 0 <= i < len(stamps)), key=lambda i: abs(stamps[i] - stamp_ns))
+        return self._poses[nearest] if abs(stamps[nearest] - stamp_ns) <= tolerance_ns else None
+
+
+def obstacles_in_route_frame(obstacles: Obstacles, route_frame: str, base_pose: np.ndarray | None,
+                             sensor_mount: np.ndarray | None) -> Obstacles | None:
+    """Obstacles in the route's (odometry) frame: as they are when already there; else through the odometry pose at
+    their stamp (odom <- base_link) and the base_link <- sensor mount (identity for base_link itself). None when a
+    transform is missing."""
+    if obstacles.frame_id == route_frame:
+        return obstacles
+    if base_pose is None or sensor_mount is None:
+        return None
+    return obstacles.transformed(base_pose @ sensor_mount, route_frame)

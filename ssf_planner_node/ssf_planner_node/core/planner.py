@@ -1,0 +1,248 @@
+"""The RDA-style MPC: per tick, warm start from the previous plan, then rounds of (1) the dual step: per obstacle and
+horizon step the separating direction between planned footprint and predicted obstacle, in closed form, and
+(2) the primal step: the QP in states and controls with the distance bounds those directions make linear,
+until the plan stops moving or the rounds run out. A failed or late solve never stalls the car: the previous
+plan, shifted to now, if it is still collision-free; else full braking. Every fallback is counted."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from enum import Enum
+from typing import NamedTuple
+
+import numpy as np
+
+from ssf_common.records import Obstacles, Plan
+from ssf_planner_node.core import avoidance
+from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.models import Command, command_of, rollout, trajectory
+from ssf_planner_node.core.problem import Reference, TrackingProblem
+from ssf_planner_node.core.route import Route
+
+
+class VehicleState(NamedTuple):
+    """Planar ego state in the route's frame at a stamp: position, heading, forward speed."""
+
+    stamp_ns: int
+    x: float
+    y: float
+    yaw: float
+    speed: float
+
+    @property
+    def vector(self) -> np.ndarray:
+        """(4,) x, y, yaw, speed."""
+        return np.array([self.x, self.y, self.yaw, self.speed], dtype=np.float64)
+
+
+class TickStatus(str, Enum):
+    """How a tick's command came about."""
+
+    SOLVED = "solved"  # the MPC's own plan
+    SHIFTED = "shifted"  # fallback: the previous plan shifted to now
+    BRAKE = "brake"  # fallback: full braking
+    NO_ROUTE = "no_route"  # nothing to follow: standing still
+
+
+class PlanStep(NamedTuple):
+    """One tick's answer: the command, the plan behind it, how it came about and what it cost."""
+
+    command: Command
+    plan: Plan
+    status: TickStatus
+    reason: str  # why a fallback was taken ("" when solved)
+    solve_ms: float
+    rounds: int
+    obstacles: int  # obstacles in the problem
+    clearance: float  # smallest predicted distance to an obstacle along the plan (m; inf without obstacles)
+    done: bool  # the goal is reached
+
+
+@dataclass
+class PlannerStats:
+    """Ticks by status and fallbacks by reason, since the start."""
+
+    ticks: Counter = field(default_factory=Counter)
+    reasons: Counter = field(default_factory=Counter)
+
+    @property
+    def fallbacks(self) -> int:
+        """Ticks that used a fallback."""
+        return self.ticks[TickStatus.SHIFTED] + self.ticks[TickStatus.BRAKE]
+
+    @property
+    def total(self) -> int:
+        """All ticks."""
+        return sum(self.ticks.values())
+
+
+@dataclass
+class _Memory:
+    """The last plan: when it was made, its states and controls (the next tick's warm start and fallback)."""
+
+    stamp_ns: int
+    states: np.ndarray
+    controls: np.ndarray
+
+
+class RdaPlanner:
+    """Route tracking at the reference speed around moving obstacles; call `step` once per tick."""
+
+    name = "rda"
+
+    def __init__(self, config: PlannerConfig, route: Route | None = None) -> None:
+        self.config = config
+        self.problem = TrackingProblem(config)
+        self._trajectory = trajectory(self.problem.step, config.horizon)
+        self.route = route
+        self.stats = PlannerStats()
+        self._memory: _Memory | None = None
+        self._applied = np.zeros(2)
+        self._ego_radius = 0.5 * float(np.hypot(config.vehicle.length, config.vehicle.width))
+
+    def set_route(self, route: Route) -> None:
+        """Follow another route from now on."""
+        self.route = route
+        self._memory = None
+
+    def step(self, state: VehicleState, obstacles: Obstacles | None = None, stale: bool = False) -> PlanStep:
+        """The command for this tick; obstacles in the route's frame (None: none known); stale caps the speed."""
+        started = time.perf_counter()
+        cfg = self.config
+        if self.route is None:
+            return self._finish(self._brake(state, "no route", status=TickStatus.NO_ROUTE), started)
+        done = self.route.remaining(state.vector[:2]) <= 0.0 or \
+            np.linalg.norm(state.vector[:2] - self.route.goal) <= cfg.goal_tolerance and state.speed < 0.5
+        obstacles = obstacles if obstacles is not None else Obstacles.empty(state.stamp_ns, self.route.frame_id)
+        # 1. warm start: the previous plan shifted to now (or coasting), and the reference along it
+        controls = self._warm_controls(state)
+        nominal = rollout(self._trajectory, state.vector, controls)
+        reference = self._reference(nominal, stale)
+        # 2. the obstacles nearest to the planned motion, their footprints predicted over the horizon
+        latency = (state.stamp_ns - obstacles.stamp_ns) * 1e-9 if len(obstacles) else 0.0
+        times = latency + cfg.dt * np.arange(cfg.horizon + 1)
+        corners = avoidance.predicted_corners(obstacles, times, cfg.obstacles.static_speed)
+        chosen = avoidance.nearest_obstacles(corners, nominal[:, :2], self._ego_radius, cfg.obstacles.max_obstacles,
+                                             cfg.obstacles.range)
+        corners = corners[:, chosen]
+        # 3. rounds of dual step (separating directions) and primal step (QP), until the plan settles
+        rounds, solution = 0, None
+        for rounds in range(1, cfg.solver.iterations + 1):
+            planes = self._hyperplanes(nominal, corners)
+            solution = self.problem.solve(state.vector, nominal, controls, reference, self._applied,
+                                          planes.normals[1:], planes.offsets[1:],
+                                          cfg.obstacles.headway * planes.closing[1:])
+            if not solution.success:
+                break
+            controls = solution.controls
+            settled = rollout(self._trajectory, state.vector, controls)
+            moved = float(np.linalg.norm(settled[:, :2] - nominal[:, :2], axis=1).max())
+            nominal = settled
+            reference = self._reference(nominal, stale)
+            if moved < cfg.solver.tolerance:
+                break
+        elapsed_ms = (time.perf_counter() - started) * 1e3
+        if solution is None or not solution.success:
+            reason = f"solver failed ({solution.status if solution else 'no solution'})"
+            return self._finish(self._fallback(state, corners, reason), started, rounds, len(chosen), done)
+        if cfg.solver.deadline_ms and elapsed_ms > cfg.solver.deadline_ms:
+            return self._finish(self._fallback(state, corners, f"late ({elapsed_ms:.0f} ms)"), started, rounds,
+                                len(chosen), done)
+        clearance = self._clearance(nominal, corners)
+        if clearance < 0.0:
+            return self._finish(self._fallback(state, corners, f"plan collides ({clearance:.2f} m)"), started, rounds,
+                                len(chosen), done)
+        self._memory = _Memory(state.stamp_ns, nominal, controls)
+        command = command_of(cfg, state.vector, controls[0])
+        if done:
+            command = Command(0.0, 0.0)
+        self._applied = controls[0].copy()
+        step = PlanStep(command, self._plan(state, nominal, controls), TickStatus.SOLVED, "", 0.0, rounds,
+                        len(chosen), clearance, done)
+        return self._finish(step, started)
+
+    def _finish(self, step: PlanStep, started: float, rounds: int | None = None, count: int | None = None,
+                done: bool | None = None) -> PlanStep:
+        self.stats.ticks[step.status] += 1
+        if step.reason and step.status is not TickStatus.NO_ROUTE:
+            self.stats.reasons[step.reason.split(" (")[0]] += 1
+        return step._replace(solve_ms=(time.perf_counter() - started) * 1e3,
+                             **({"rounds": rounds} if rounds is not None else {}),
+                             **({"obstacles": count} if count is not None else {}),
+                             **({"done": done} if done is not None else {}))
+
+    def _warm_controls(self, state: VehicleState) -> np.ndarray:
+        """The previous plan's controls from now on (held piecewise), or coasting when there is none."""
+        cfg = self.config
+        memory = self._memory
+        if memory is None:
+            return np.zeros((cfg.horizon, 2))
+        elapsed = (state.stamp_ns - memory.stamp_ns) * 1e-9
+        if not 0.0 <= elapsed < cfg.horizon * cfg.dt:
+            return np.zeros((cfg.horizon, 2))
+        index = np.minimum(((elapsed + cfg.dt * np.arange(cfg.horizon)) / cfg.dt + 1e-9).astype(int), cfg.horizon - 1)
+        controls = memory.controls[index].copy()
+        tail = (elapsed + cfg.dt * np.arange(cfg.horizon)) >= cfg.horizon * cfg.dt
+        controls[tail, 0] = 0.0
+        return controls
+
+    def _reference(self, nominal: np.ndarray, stale: bool) -> Reference:
+        """Route points nearest the nominal positions (steps 1..H), headings unwrapped to the nominal's, speeds."""
+        cfg = self.config
+        points = self.route.project(nominal[1:, :2])
+        s = np.maximum.accumulate(points.s)
+        points = self.route.at(s)
+        headings = nominal[1:, 2] + np.angle(np.exp(1j * (points.heading - nominal[1:, 2])))
+        speeds = self.route.speed_limit(s, cfg.reference_speed, cfg.goal_decel)
+        if stale:
+            speeds = np.minimum(speeds, cfg.stale_speed)
+        return Reference(points.point, points.normal, headings, speeds)
+
+    def _hyperplanes(self, nominal: np.ndarray, corners: np.ndarray) -> avoidance.Hyperplanes:
+        cfg = self.config
+        return avoidance.hyperplanes(nominal[:, :2], nominal[:, 2], nominal[:, 3], cfg.vehicle.length,
+                                     cfg.vehicle.width, corners, cfg.obstacles.max_obstacles)
+
+    def _clearance(self, states: np.ndarray, corners: np.ndarray) -> float:
+        """Smallest distance between the planned footprints (steps 1..H) and the predicted obstacles."""
+        if corners.shape[1] == 0:
+            return float("inf")
+        return float(self._hyperplanes(states, corners).distances[1:].min())
+
+    def _fallback(self, state: VehicleState, corners: np.ndarray, reason: str) -> PlanStep:
+        """The previous plan shifted to now while it stays clear of the obstacles; else brake."""
+        memory = self._memory
+        if memory is not None:
+            elapsed = (state.stamp_ns - memory.stamp_ns) * 1e-9
+            if 0.0 <= elapsed < self.config.horizon * self.config.dt - self.config.control_period:
+                controls = self._warm_controls(state)
+                states = rollout(self._trajectory, state.vector, controls)
+                clearance = self._clearance(states, corners)
+                if clearance >= 0.0:
+                    command = command_of(self.config, state.vector, controls[0])
+                    self._applied = controls[0].copy()
+                    return PlanStep(command, self._plan(state, states, controls), TickStatus.SHIFTED, reason, 0.0, 0,
+                                    corners.shape[1], clearance, False)
+        return self._brake(state, reason, corners)
+
+    def _brake(self, state: VehicleState, reason: str, corners: np.ndarray | None = None,
+               status: TickStatus = TickStatus.BRAKE) -> PlanStep:
+        """Full braking in a straight line."""
+        cfg = self.config
+        speeds = np.maximum(state.speed - cfg.vehicle.max_decel * cfg.dt * np.arange(cfg.horizon + 1), 0.0)
+        controls = np.zeros((cfg.horizon, 2))
+        controls[:, 0] = np.diff(speeds) / cfg.dt
+        states = rollout(self._trajectory, state.vector, controls)
+        self._applied = np.zeros(2)
+        self._memory = None
+        command = Command(max(state.speed - cfg.vehicle.max_decel * cfg.control_period, 0.0), 0.0)
+        clearance = self._clearance(states, corners) if corners is not None else float("inf")
+        return PlanStep(command, self._plan(state, states, controls), status, reason, 0.0, 0,
+                        0 if corners is None else corners.shape[1], clearance, False)
+
+    def _plan(self, state: VehicleState, states: np.ndarray, controls: np.ndarray) -> Plan:
+        cfg = self.config
+        frame = self.route.frame_id if self.route is not None else ""
+        return Plan(state.stamp_ns, frame, cfg.dt * np.arange(cfg.horizon + 1), states.copy(), controls.copy())
