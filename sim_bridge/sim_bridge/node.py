@@ -84,12 +84,14 @@ class SimBridgeNode(Node):
         self.pub_obstacles = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.GT_OBSTACLES, QOS_DEFAULT)
         self.pub_markers = self.create_publisher("visualization_msgs/msg/MarkerArray", topics.MARKERS, QOS_DEFAULT)
         self.pub_episode = self.create_publisher("ssf_interfaces/msg/EpisodeResult", topics.EPISODE, QOS_LATCHED)
+        self.pub_route = self.create_publisher("nav_msgs/msg/Path", topics.ROUTE, QOS_LATCHED)
         self.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_cmd_vel, QOS_DEFAULT)
         self.time_limit = self.config.duration_s or scenario.episode.time_limit
         self.started = False
         self.readers_since: float | None = None
         self.created_at = time.monotonic()
-        self.sim.reset()
+        first = self.sim.reset()
+        self.pub_route.publish(ros_messages.route_path(self.sim.route_waypoints(), first.base_pose, first.stamp_ns))
         self.create_timer(self._tick_period(), self.tick)
         self.get_logger().info(
             f"scenario '{self.config.scenario}' seed {self.sim.seed}: {scenario.agents.count} agents, "

@@ -13,13 +13,14 @@ from sim_bridge.simulator import EpisodeStatus
 from sim_bridge.agents import AgentKind, AgentStates
 from ssf_common import messages
 from ssf_common import pose_msgs
-from ssf_common.conversions import obstacles_to_msg
-from ssf_common.records import ObstacleKind, Obstacles
+from ssf_common.conversions import obstacles_to_msg, plan_to_msg
+from ssf_common.records import ObstacleKind, Obstacles, Plan
 from ssf_common.pointcloud import xyz_to_cloud
 
 WORLD_FRAME = "world"
 BASE_FRAME = "base_link"
 LIDAR_FRAME = "lidar"
+ODOM_FRAME = "odom"
 
 _OBSTACLE_KIND = {AgentKind.VEHICLE: ObstacleKind.VEHICLE, AgentKind.PEDESTRIAN: ObstacleKind.PEDESTRIAN}
 
@@ -142,6 +143,16 @@ def episode_result(status: EpisodeStatus, scenario: str, seed: int, num_agents: 
         min_clearance=float(status.min_clearance) if np.isfinite(status.min_clearance) else -1.0,
         num_agents=num_agents,
     )
+
+
+def route_path(waypoints: np.ndarray, start_base_pose: np.ndarray, stamp_ns: int) -> Any:
+    """/sim/route: the route's world waypoints (N, 3) in the odometry frame, i.e. the frame of the ego's start pose
+    (x forward, y left), as nav_msgs/Path with frame_id 'odom' (headings along the route)."""
+    local = (waypoints - start_base_pose[:3, 3]) @ start_base_pose[:3, :3]
+    heading = np.arctan2(np.diff(local[:, 1]), np.diff(local[:, 0]))
+    heading = np.r_[heading, heading[-1:]]
+    states = np.c_[local[:, :2], heading, np.zeros(len(local))]
+    return plan_to_msg(Plan(stamp_ns, ODOM_FRAME, np.zeros(len(local)), states))
 
 
 def clock(stamp_ns: int) -> Any:

@@ -20,3 +20,4 @@ GT_ODOM = "/sim/ground_truth/odom"
 EPISODE = "/sim/episode"
 MARKERS = "/sim/markers"
 SSF_MARKERS = "/ssf/markers"  # perceived obstacles, their velocity arrows and the plan (visualization_msgs/MarkerArray)
+ROUTE = "/sim/route"  # the route A -> B in the odometry frame (latched nav_msgs/Path)

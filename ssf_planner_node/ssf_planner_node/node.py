@@ -1,20 +1,155 @@
-"""ssf_planner_node: RDA-style MPC around moving obstacles (issue: ssf_planner_node).
+"""ssf_planner_node: /ssf/obstacles + /odom + a route (A -> B in the odometry frame) -> /cmd_vel and /ssf/plan.
 
-Until that stage's algorithm lands, the node joins the graph on its input topic and reports what arrives.
-"""
+One plan per odometry message (the simulator's 10 Hz), with the newest obstacles moved into the odometry frame by
+the pose at their stamp. Stale obstacles cap the speed, stale odometry brakes, each said once."""
 
 from __future__ import annotations
 
-from ssf_common import topics
-from ssf_common.graph_node import ListeningNode
-from ssf_common.middleware import QOS_DEFAULT, run
+from typing import Any
+
+import numpy as np
+
+from ssf_common import messages, pose_msgs, topics
+from ssf_common.conversions import obstacles_from_msg, odometry_from_msg, plan_from_msg, plan_to_msg
+from ssf_common.errors import ConfigError, MessageError, SsfError
+from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
+from ssf_common.records import Obstacles
+from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.frames import PoseHistory, obstacles_in_route_frame, state_of
+from ssf_planner_node.core.models import Command
+from ssf_planner_node.core.planner import RdaPlanner, TickStatus
+from ssf_planner_node.core.route import Route
+
+BASE_FRAME = "base_link"
 
 
-class PlannerNode(ListeningNode):
-    """Graph shell of ssf_planner_node."""
+class PlannerNode(Node):
+    """Translates odometry, obstacles and the route into planner ticks, and their answers into messages."""
 
     def __init__(self, argv: list[str] | None = None) -> None:
-        super().__init__("ssf_planner_node", {topics.OBSTACLES: ("ssf_interfaces/msg/ObstacleArray", QOS_DEFAULT)}, argv=argv)
+        super().__init__("ssf_planner_node", argv=argv)
+        self.config = self.declare_config(PlannerConfig)
+        waypoints = self.declare_parameter("route_waypoints", []).value  # x0, y0, x1, y1, ... (odometry frame)
+        route_topic = self.declare_parameter("route_topic", topics.ROUTE).value
+        report_period = self.declare_parameter("report_period_s", 5.0).value
+        self.planner = RdaPlanner(self.config)
+        if waypoints:
+            self.planner.set_route(self._route_from_parameter(waypoints))
+        self.poses = PoseHistory()
+        self.mounts: dict[str, np.ndarray] = {BASE_FRAME: np.eye(4)}
+        self.obstacles: Obstacles | None = None
+        self.last_odometry_s: float | None = None
+        self.last_command = Command(0.0, 0.0)
+        self.said: set[str] = set()
+        self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
+        self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles, QOS_DEFAULT)
+        self.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
+        self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
+        if self.planner.route is None:
+            self.create_subscription("nav_msgs/msg/Path", route_topic, self.on_route, QOS_LATCHED)
+        self.create_timer(self.config.control_period, self.watchdog)
+        self.create_timer(report_period, self._report)
+        source = "parameter route_waypoints" if self.planner.route is not None else route_topic
+        self.get_logger().info(f"{self.config.model.value} MPC, horizon {self.config.horizon} x {self.config.dt:g} s, "
+                               f"K = {self.config.obstacles.max_obstacles}, route from {source}")
+
+    def _route_from_parameter(self, values: list[float]) -> Route:
+        if len(values) % 2 or len(values) < 4:
+            raise ConfigError("route_waypoints must be at least two x, y pairs (x0, y0, x1, y1, ...)")
+        return Route(np.asarray(values, dtype=np.float64).reshape(-1, 2), "odom")
+
+    def on_route(self, msg: Any) -> None:
+        """Follow the route on the route topic (in the odometry frame)."""
+        try:
+            plan = plan_from_msg(msg)
+            self.planner.set_route(Route(plan.states[:, :2], plan.frame_id or "odom"))
+        except SsfError as err:
+            self.get_logger().warning(f"dropped a route: {err}")
+            return
+        self.get_logger().info(f"route of {self.planner.route.length:.0f} m in frame '{self.planner.route.frame_id}'")
+
+    def on_tf(self, msg: Any) -> None:
+        """Remember how sensors are mounted on base_link (base_link -> sensor transforms)."""
+        for item in msg.transforms:
+            if item.header.frame_id == BASE_FRAME:
+                self.mounts[item.child_frame_id] = pose_msgs.matrix_from_transform(item.transform)
+
+    def on_obstacles(self, msg: Any) -> None:
+        """Keep the newest obstacles."""
+        try:
+            self.obstacles = obstacles_from_msg(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.OBSTACLES}: {err}")
+
+    def on_odometry(self, msg: Any) -> None:
+        """Plan from this pose with the newest obstacles; publish the command and the plan."""
+        try:
+            odometry = odometry_from_msg(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.ODOM}: {err}")
+            return
+        self.poses.add(odometry.stamp_ns, odometry.pose)
+        self.last_odometry_s = self.get_clock().now_s()
+        self._said_if(False, "odometry")
+        state = state_of(odometry)
+        obstacles = self._obstacles_now(odometry.frame_id, odometry.stamp_ns)
+        stale = obstacles is None
+        step = self.planner.step(state, obstacles, stale=stale)
+        self._publish(step.command)
+        self.plan_pub.publish(plan_to_msg(step.plan))
+        if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
+            self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
+
+    def _obstacles_now(self, odom_frame: str, stamp_ns: int) -> Obstacles | None:
+        """The newest obstacles in the route's frame, or None when they are stale or cannot be placed."""
+        route_frame = self.planner.route.frame_id if self.planner.route is not None else odom_frame
+        if route_frame != odom_frame:
+            self._said_if(True, "frames", f"route frame '{route_frame}' is not the odometry frame '{odom_frame}': "
+                          "obstacles cannot be placed")
+            return None
+        obstacles = self.obstacles
+        age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
+        if age > self.config.stale_after_s:
+            self._said_if(True, "obstacles", f"obstacles are stale ({'none yet' if obstacles is None else f'{age:.1f} s old'}): "
+                          f"speed capped at {self.config.stale_speed:g} m/s")
+            return None
+        placed = obstacles_in_route_frame(obstacles, route_frame, self.poses.at(obstacles.stamp_ns),
+                                          self.mounts.get(obstacles.frame_id))
+        self._said_if(placed is None, "obstacles", f"obstacles in frame '{obstacles.frame_id}' cannot be placed (no pose "
+                      f"at their stamp or no {BASE_FRAME} -> {obstacles.frame_id} transform): speed capped")
+        return placed
+
+    def watchdog(self) -> None:
+        """Without fresh odometry, slow down to a stop (said once)."""
+        if self.last_odometry_s is None:
+            return
+        age = self.get_clock().now_s() - self.last_odometry_s
+        if age > self.config.stale_after_s:
+            self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s): braking")
+            slowed = max(self.last_command.linear - self.config.vehicle.max_decel * self.config.control_period, 0.0)
+            self._publish(Command(slowed, 0.0))
+
+    def _publish(self, command: Command) -> None:
+        self.last_command = command
+        vector = messages.msg_type("geometry_msgs/msg/Vector3")
+        self.cmd_pub.publish(messages.msg_type("geometry_msgs/msg/Twist")(
+            linear=vector(x=float(command.linear), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=float(command.angular))))
+
+    def _said_if(self, condition: bool, topic: str, text: str = "") -> None:
+        """Say a problem once while it lasts; forget it when it is over."""
+        if condition and topic not in self.said:
+            self.said.add(topic)
+            self.get_logger().warning(text)
+        elif not condition and topic in self.said:
+            self.said.discard(topic)
+            self.get_logger().info(f"{topic} fresh again")
+
+    def _report(self) -> None:
+        stats = self.planner.stats
+        if stats.total:
+            self.get_logger().info(f"plan: {stats.total} ticks, {stats.fallbacks} fallbacks "
+                                   f"({dict(stats.reasons) or 'none'})")
 
 
 def main(argv: list[str] | None = None) -> int:

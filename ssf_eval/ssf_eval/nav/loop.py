@@ -16,11 +16,12 @@ from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Simulator
 from ssf_common.config import build
 from ssf_common.errors import ConfigError
+from ssf_common.records import Obstacles
 from ssf_common.geometry.se3 import invert
 from ssf_eval.nav.perception import ODOM_FRAME, Observation, make_perception
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import vehicle_state
-from ssf_planner_node.core.planner import RdaPlanner, TickStatus
+from ssf_planner_node.core.planner import RdaPlanner, VehicleState
 from ssf_planner_node.core.route import Route
 
 # the paper's densities as the shipped scenarios (their vehicle shares); other counts: urban_100 with that count
@@ -112,56 +113,90 @@ def scenario_for(agents: int) -> tuple[Scenario, float]:
     return load_scenario(name, {**overrides, "episode.time_limit": 100000.0}), limit
 
 
+@dataclass(frozen=True)
+class Tick:
+    """One lockstep tick: what the planner was given (state, pose, obstacles in the odometry frame) and answered."""
+
+    state: VehicleState
+    pose: np.ndarray  # (4, 4) odom <- base_link
+    obstacles: Obstacles | None
+    command: VelocityCommand
+    status: str  # the planner's TickStatus value, or "follower"
+
+
+class ClosedLoop:
+    """Simulator core -> perception core -> planner core -> simulator, one `tick()` per simulated step."""
+
+    def __init__(self, spec: TrialSpec) -> None:
+        if spec.perception not in PERCEPTION_NAMES:
+            raise ConfigError(f"unknown perception '{spec.perception}'; choose from {', '.join(PERCEPTION_NAMES)}")
+        if spec.pose != "gt":
+            raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), which is not on this branch; "
+                              "use --pose gt")
+        self.spec = spec
+        self.scenario, scenario_limit = scenario_for(spec.agents)
+        self.sim = Simulator(self.scenario, spec.seed)
+        self.frame = self.sim.reset()
+        self.world_to_odom = invert(self.frame.base_pose)  # the odometry frame: the ego's start pose
+        waypoints = self.sim.route_waypoints(spec.route_length)
+        self.route = Route((waypoints @ self.world_to_odom[:3, :3].T + self.world_to_odom[:3, 3])[:, :2], ODOM_FRAME)
+        self.time_limit = spec.time_limit or max(60.0, scenario_limit * self.route.length / self.sim.world.route_length)
+        self.follower = self.sim.follower() if spec.perception == "follower" else None
+        self.perception = None if self.follower else make_perception(spec.perception)
+        # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
+        settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
+        self.planner = None if self.follower else RdaPlanner(settings, self.route)
+        self.solve_ms: list[float] = []
+        self.perceive_ms: list[float] = []
+        self.step_ms: list[float] = []
+        self.progress = [(0.0, 0.0)]  # (time, arc length) whenever the ego got STUCK_PROGRESS_M further
+        self.outcome: TrialOutcome | None = None
+
+    def tick(self) -> Tick:
+        """Perceive, plan, step the simulator, judge the trial."""
+        frame = self.frame
+        pose = self.world_to_odom @ frame.base_pose
+        state = vehicle_state(frame.stamp_ns, pose, frame.ego.speed)
+        obstacles, status = None, "follower"
+        if self.follower is not None:
+            command = self.follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
+        else:
+            started = time.perf_counter()
+            obstacles = self.perception.observe(Observation(frame, self.world_to_odom @ frame.pose, self.world_to_odom))
+            self.perceive_ms.append((time.perf_counter() - started) * 1e3)
+            plan = self.planner.step(state, obstacles)
+            self.solve_ms.append(plan.solve_ms)
+            command, status = VelocityCommand(plan.command.linear, plan.command.angular), plan.status.value
+        started = time.perf_counter()
+        self.frame = self.sim.step(command)
+        self.step_ms.append((time.perf_counter() - started) * 1e3)
+        self.outcome = _judge(self.sim, self.frame, self.route, self.world_to_odom, self.time_limit, self.progress)
+        return Tick(state, pose, obstacles, command, status)
+
+    def record(self, started: float) -> TrialRecord:
+        """The trial's record (call when the outcome is set)."""
+        spec, status = self.spec, self.frame.status
+        stats = self.planner.stats if self.planner else None
+        return TrialRecord(
+            key=spec.key, perception=spec.perception, agents=spec.agents, seed=spec.seed, scenario=self.scenario.name,
+            outcome=self.outcome.value if self.outcome else "running", collided_with=status.collided_with,
+            navigation_time_s=round(status.time, 2), average_speed_mps=round(status.average_speed, 3),
+            path_length_m=round(status.distance, 2), route_length_m=round(self.route.length, 2),
+            min_clearance_m=round(float(status.min_clearance), 3), time_limit_s=round(self.time_limit, 1),
+            ticks=stats.total if stats else len(self.step_ms), fallbacks=stats.fallbacks if stats else 0,
+            fallback_reasons=dict(stats.reasons) if stats else {}, solve_ms_median=_stat(self.solve_ms, 50),
+            solve_ms_p95=_stat(self.solve_ms, 95), solve_ms_max=_stat(self.solve_ms, 100),
+            perception_ms_median=_stat(self.perceive_ms, 50), step_ms_median=_stat(self.step_ms, 50),
+            wall_s=round(time.perf_counter() - started, 1))
+
+
 def run_trial(spec: TrialSpec) -> TrialRecord:
     """Drive one trial to its end: success, collision, timeout or stuck."""
     started = time.perf_counter()
-    if spec.perception not in PERCEPTION_NAMES:
-        raise ConfigError(f"unknown perception '{spec.perception}'; choose from {', '.join(PERCEPTION_NAMES)}")
-    if spec.pose != "gt":
-        raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), which is not on this branch; "
-                          "use --pose gt")
-    scenario, scenario_limit = scenario_for(spec.agents)
-    sim = Simulator(scenario, spec.seed)
-    frame = sim.reset()
-    world_to_odom = invert(frame.base_pose)
-    waypoints = sim.route_waypoints(spec.route_length)
-    route = Route((waypoints @ world_to_odom[:3, :3].T + world_to_odom[:3, 3])[:, :2], ODOM_FRAME)
-    time_limit = spec.time_limit or max(60.0, scenario_limit * route.length / sim.world.route_length)
-    follower = sim.follower() if spec.perception == "follower" else None
-    perception = None if follower else make_perception(spec.perception)
-    # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
-    settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
-    planner = None if follower else RdaPlanner(settings, route)
-    solve_ms, perceive_ms, step_ms = [], [], []
-    progress = [(0.0, 0.0)]  # (time, arc length)
-    outcome = None
-    while outcome is None:
-        base = world_to_odom @ frame.base_pose
-        if follower is not None:
-            command = follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
-        else:
-            tick = time.perf_counter()
-            obstacles = perception.observe(Observation(frame, world_to_odom @ frame.pose, world_to_odom))
-            perceive_ms.append((time.perf_counter() - tick) * 1e3)
-            plan = planner.step(vehicle_state(frame.stamp_ns, base, frame.ego.speed), obstacles)
-            solve_ms.append(plan.solve_ms)
-            command = VelocityCommand(plan.command.linear, plan.command.angular)
-        tick = time.perf_counter()
-        frame = sim.step(command)
-        step_ms.append((time.perf_counter() - tick) * 1e3)
-        outcome = _judge(sim, frame, route, world_to_odom, time_limit, progress)
-    status = frame.status
-    stats = planner.stats if planner else None
-    return TrialRecord(
-        key=spec.key, perception=spec.perception, agents=spec.agents, seed=spec.seed, scenario=scenario.name,
-        outcome=outcome.value, collided_with=status.collided_with, navigation_time_s=round(status.time, 2),
-        average_speed_mps=round(status.average_speed, 3), path_length_m=round(status.distance, 2),
-        route_length_m=round(route.length, 2), min_clearance_m=round(float(status.min_clearance), 3),
-        time_limit_s=round(time_limit, 1), ticks=stats.total if stats else len(step_ms),
-        fallbacks=stats.fallbacks if stats else 0, fallback_reasons=dict(stats.reasons) if stats else {},
-        solve_ms_median=_stat(solve_ms, 50), solve_ms_p95=_stat(solve_ms, 95), solve_ms_max=_stat(solve_ms, 100),
-        perception_ms_median=_stat(perceive_ms, 50), step_ms_median=_stat(step_ms, 50),
-        wall_s=round(time.perf_counter() - started, 1))
+    loop = ClosedLoop(spec)
+    while loop.outcome is None:
+        loop.tick()
+    return loop.record(started)
 
 
 def _judge(sim: Simulator, frame, route: Route, world_to_odom: np.ndarray, time_limit: float,

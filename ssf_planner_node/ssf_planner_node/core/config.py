@@ -84,6 +84,8 @@ class PlannerConfig(Section):
     reference_speed: float = Field(10.0, gt=0.0, le=40.0, description="cruise speed along the route (m/s)")
     goal_decel: float = Field(1.5, gt=0.0, description="comfortable deceleration (m/s^2) for stopping at the goal")
     goal_tolerance: float = Field(3.0, gt=0.0, description="the route is done within this distance of its end (m)")
+    corridor_left: float = Field(3.5, gt=0.0, description="the plan stays within this distance left of the route (m)")
+    corridor_right: float = Field(3.5, gt=0.0, description="... and right of it (m): the road the route runs along")
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
     stale_after_s: float = Field(0.5, gt=0.0, description="obstacles (or odometry) older than this are stale")
     vehicle: VehicleConfig = VehicleConfig()

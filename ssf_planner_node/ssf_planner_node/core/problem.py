@@ -1,5 +1,6 @@
 """The primal problem of one tick, built once as a parametric CasADi QP and only re-solved: kinematics linearised
-along a nominal trajectory, route tracking at the reference speed, and per obstacle and step a distance bound that
+along a nominal trajectory, route tracking at the reference speed within a corridor along the route (the road it
+runs on), and per obstacle and step a distance bound that
 is linear for fixed dual directions (hard at the safety distance, soft up to the comfort distance plus headway)."""
 
 from __future__ import annotations
@@ -44,7 +45,7 @@ class Solution(NamedTuple):
 
 
 class TrackingProblem:
-    """min tracking + effort + smoothness + slack_gain * slack, s.t. linearised kinematics, limits and
+    """min tracking + effort + smoothness + slack_gain * slack, s.t. linearised kinematics, limits, the corridor and
     n . p_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot and step)."""
 
     def __init__(self, config: PlannerConfig) -> None:
@@ -81,6 +82,7 @@ class TrackingProblem:
         linear = ca.Function("linear", [x_bar, u_bar], [next_bar, ca.jacobian(next_bar, x_bar), ca.jacobian(next_bar, u_bar)])
 
         constraints = [states[:, 0] - start]
+        corridor = []
         cost = 0
         for k in range(horizon):
             f, a, b = linear(nominal_x[:, k], nominal_u[:, k])
@@ -88,6 +90,7 @@ class TrackingProblem:
             factor = w.terminal if k == horizon - 1 else 1.0
             position = states[:2, k + 1]
             lateral = ca.dot(ref_normals[:, k], position - ref_points[:, k])
+            corridor.append(lateral)
             cost += factor * (w.lateral * lateral ** 2 + w.heading * (states[2, k + 1] - ref_headings[0, k]) ** 2
                               + w.speed * (states[3, k + 1] - ref_speeds[0, k]) ** 2)
             cost += w.accel * controls[0, k] ** 2 + w.turn * controls[1, k] ** 2
@@ -104,7 +107,7 @@ class TrackingProblem:
         parameters = ca.veccat(start, nominal_x, nominal_u, ref_points, ref_normals, ref_headings, ref_speeds, previous,
                                normals_x, normals_y, offsets)
         self._sizes = (STATE_SIZE * (horizon + 1), CONTROL_SIZE * horizon, slots * horizon)
-        problem = {"x": variables, "p": parameters, "f": cost, "g": ca.vertcat(*constraints, *distance)}
+        problem = {"x": variables, "p": parameters, "f": cost, "g": ca.vertcat(*constraints, *corridor, *distance)}
         options = {"error_on_fail": False, **QUIET[cfg.solver.qp]}
         self.solver = ca.qpsol("rda_primal", cfg.solver.qp, problem, options)
         self._warm: dict[str, np.ndarray] | None = None
@@ -121,8 +124,8 @@ class TrackingProblem:
         ])
         soft = cfg.obstacles.comfort_distance + margins.ravel()
         lbx, ubx = self._bounds(nominal_states, soft)
-        lbg = np.r_[np.zeros(self._equalities), soft]
-        ubg = np.r_[np.zeros(self._equalities), np.full(horizon * slots, np.inf)]
+        lbg = np.r_[np.zeros(self._equalities), np.full(horizon, -cfg.corridor_right), soft]
+        ubg = np.r_[np.zeros(self._equalities), np.full(horizon, cfg.corridor_left), np.full(horizon * slots, np.inf)]
         guess = self._warm or {}
         result = self.solver(p=parameters, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg,
                              x0=np.r_[nominal_states.ravel(), nominal_controls.ravel(), np.zeros(horizon * slots)],

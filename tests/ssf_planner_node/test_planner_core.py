@@ -1,0 +1,172 @@
+"""The RDA-style MPC core: path tracking, stopping, moving obstacles by their predicted position, fallbacks, config."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssf_common.config import build
+from ssf_common.errors import ConfigError
+from ssf_common.geometry.boxes import box_corners
+from ssf_common.records import ObstacleKind, Obstacles
+from ssf_planner_node.core.avoidance import separation
+from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.planner import RdaPlanner, TickStatus, VehicleState
+from ssf_planner_node.core.route import Route
+
+TICK = 0.1
+
+
+def boxes(centres, sizes, velocities=None, stamp_ns: int = 0) -> Obstacles:
+    """Upright boxes (x, y centres; length, width) in the odometry frame."""
+    centres, sizes = np.asarray(centres, float).reshape(-1, 2), np.asarray(sizes, float).reshape(-1, 2)
+    count = len(centres)
+    velocities = np.zeros((count, 2)) if velocities is None else np.asarray(velocities, float).reshape(-1, 2)
+    return Obstacles(stamp_ns, "odom", ids=np.arange(1, count + 1), kinds=np.full(count, ObstacleKind.VEHICLE),
+                     centres=np.c_[centres, np.ones(count)], sizes=np.c_[sizes, np.full(count, 1.5)],
+                     yaws=np.zeros(count), velocities=np.c_[velocities, np.zeros(count)])
+
+
+def drive(planner: RdaPlanner, start: tuple[float, float, float, float], ticks: int, world=None, seen=None):
+    """Closed loop with an exact unicycle that follows /cmd_vel under the vehicle's limits; world(t) gives the true
+    obstacles, seen(t) what the planner is told (default: the truth). Returns states (T, 4) and the true clearances."""
+    cfg = planner.config.vehicle
+    x, y, yaw, speed = start
+    states, clearances, steps = [], [], []
+    for tick in range(ticks):
+        t = tick * TICK
+        truth = world(t) if world else None
+        step = planner.step(VehicleState(int(round(t * 1e9)), x, y, yaw, speed), (seen or world)(t) if world else None)
+        steps.append(step)
+        change = np.clip(step.command.linear - speed, -cfg.max_decel * TICK, cfg.max_accel * TICK)
+        speed_next, rate = speed + change, np.clip(step.command.angular, -cfg.max_yaw_rate, cfg.max_yaw_rate)
+        heading = yaw + rate * TICK / 2
+        x, y = x + speed_next * TICK * np.cos(heading), y + speed_next * TICK * np.sin(heading)
+        yaw, speed = yaw + rate * TICK, speed_next
+        states.append((x, y, yaw, speed))
+        if truth is not None and len(truth):
+            ego = box_corners(np.array([x, y]), cfg.length, cfg.width, yaw)
+            later = world(t + TICK)
+            clearances.append(min(separation(ego, corner)[1] for corner in later.corners()))
+    return np.array(states), np.array(clearances), steps
+
+
+def planner_for(waypoints, **overrides) -> RdaPlanner:
+    return RdaPlanner(build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, overrides), Route(np.array(waypoints)))
+
+
+def test_tracks_a_straight_and_a_curved_path_at_the_reference_speed():
+    straight, _, steps = drive(planner_for([[0, 0], [400, 0]]), (0.0, 1.5, 0.2, 0.0), 120)
+    assert abs(straight[-1, 1]) < 0.1 and abs(straight[-1, 2]) < 0.02  # back on the line, heading along it
+    assert straight[-1, 3] == pytest.approx(10.0, abs=0.3)
+    assert all(step.status is TickStatus.SOLVED for step in steps)
+    radius = 60.0
+    angles = np.linspace(-np.pi / 2, np.pi, 200)
+    arc = np.c_[radius * np.cos(angles), radius * (1 + np.sin(angles))]  # a circle of 60 m from (0, 0), heading +x
+    curved, _, steps = drive(planner_for(arc), (0.0, 0.0, 0.0, 5.0), 150)
+    distance_to_arc = np.abs(np.hypot(curved[:, 0], curved[:, 1] - radius) - radius)
+    assert distance_to_arc.max() < 0.5 and distance_to_arc[-50:].mean() < 0.2
+    assert curved[-1, 3] > 8.5  # 10 m/s needs 1.7 m/s^2 sideways on this curve, within the limits
+    assert all(step.status is TickStatus.SOLVED for step in steps)
+
+
+def test_stops_for_a_static_box_across_the_road():
+    wall = boxes([[30.0, 0.0]], [[2.0, 30.0]])
+    states, clearance, steps = drive(planner_for([[0, 0], [200, 0]]), (0.0, 0.0, 0.0, 8.0), 80, lambda t: wall)
+    assert states[-1, 3] < 0.2  # standing
+    assert clearance.min() > 0.1  # never closer than the safety distance
+    assert states[:, 0].max() < 30.0 - 1.0 - 2.35  # stopped before the wall (comfort distance kept)
+    assert max(step.obstacles for step in steps) == 1
+
+
+def test_passes_a_crossing_agent_by_its_predicted_position():
+    def crossing(t: float) -> Obstacles:  # a car crossing the route from the right at 4 m/s
+        return boxes([[30.0, -14.0 + 4.0 * t]], [[2.0, 4.5]], [[0.0, 4.0]], int(round(t * 1e9)))
+
+    def standing(t: float) -> Obstacles:  # the same car told without its velocity
+        seen = crossing(t)
+        return Obstacles(seen.stamp_ns, seen.frame_id, seen.ids, seen.kinds, seen.centres, seen.sizes, seen.yaws,
+                         np.zeros((1, 3)))
+
+    start = (0.0, 0.0, 0.0, 10.0)
+    states, clearance, _ = drive(planner_for([[0, 0], [300, 0]]), start, 90, crossing)
+    assert clearance.min() > 0.1 and states[-1, 0] > 45.0  # got past, clear of the car
+    _, blind, _ = drive(planner_for([[0, 0], [300, 0]]), start, 90, crossing, seen=standing)
+    assert blind.min() <= 0.0  # ignoring the velocity runs into it
+
+
+def test_fallbacks_on_an_infeasible_or_late_solve_are_counted():
+    planner = planner_for([[0, 0], [200, 0]])
+    planner.step(VehicleState(0, 0.0, 0.0, 0.0, 5.0))
+    overlapping = boxes([[2.5, 0.0]], [[3.0, 3.0]], stamp_ns=100_000_000)  # already touching the front bumper
+    step = planner.step(VehicleState(100_000_000, 0.5, 0.0, 0.0, 5.0), overlapping)
+    assert step.status is TickStatus.BRAKE and "infeasible" in step.reason
+    assert step.command.linear == pytest.approx(5.0 - 6.0 * 0.1) and step.command.angular == 0.0
+    assert planner.stats.ticks[TickStatus.BRAKE] == 1 and planner.stats.fallbacks == 1
+
+    late = planner_for([[0, 0], [200, 0]])
+    first = late.step(VehicleState(0, 0.0, 0.0, 0.0, 5.0))
+    assert first.status is TickStatus.SOLVED
+    late.config = late.config.model_copy(update={"solver": late.config.solver.model_copy(update={"deadline_ms": 1e-6})})
+    shifted = late.step(VehicleState(100_000_000, 0.5, 0.0, 0.0, 5.3))
+    assert shifted.status is TickStatus.SHIFTED and shifted.reason.startswith("late")
+    assert shifted.command.linear > 5.0  # the previous plan (speeding up to 10 m/s) goes on
+    assert late.stats.fallbacks == 1 and late.stats.reasons["late"] == 1
+
+
+def inside(polygon: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Which points lie inside a counter-clockwise convex polygon."""
+    edge = np.roll(polygon, -1, 0) - polygon
+    offset = points[:, None, :] - polygon[None]
+    return (edge[None, :, 0] * offset[..., 1] - edge[None, :, 1] * offset[..., 0] >= 0).all(axis=1)
+
+
+def test_separation_is_the_signed_distance_between_rectangles():
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        a = box_corners(rng.uniform(-3, 3, 2), *rng.uniform(0.5, 5, 2), rng.uniform(-np.pi, np.pi))
+        b = box_corners(rng.uniform(-3, 3, 2), *rng.uniform(0.5, 5, 2), rng.uniform(-np.pi, np.pi))
+        normal, distance = separation(a, b)
+        edges_a = np.concatenate([np.linspace(p, q, 200) for p, q in zip(a, np.roll(a, -1, 0))])
+        edges_b = np.concatenate([np.linspace(p, q, 200) for p, q in zip(b, np.roll(b, -1, 0))])
+        brute = np.linalg.norm(edges_a[:, None] - edges_b[None], axis=2).min()
+        assert np.linalg.norm(normal) == pytest.approx(1.0)
+        if distance > 0:  # separated: the true distance (sampled boundaries are 1-2 cm coarse)
+            assert distance == pytest.approx(brute, abs=0.03)
+        else:  # overlapping: the boundaries touch or cross, or one holds the other
+            assert brute < 0.03 or inside(a, edges_b).any() or inside(b, edges_a).any()
+
+
+@pytest.mark.parametrize("overrides, field", [
+    ({"horizon": 1}, "horizon"),
+    ({"dt": 0.0}, "dt"),
+    ({"obstacles": {"safety_distance": 1.5, "comfort_distance": 1.0}}, "comfort_distance"),
+    ({"reference_speed": 20.0}, "reference_speed"),
+    ({"model": "tricycle"}, "model"),
+    ({"weights": {"lateral": -1.0}}, "weights.lateral"),
+    ({"obstacles": {"max_obstacles": 10, "radius": 3}}, "obstacles.radius"),
+])
+def test_config_validation(overrides, field):
+    with pytest.raises(ConfigError, match=field.split(".")[-1]):
+        build(PlannerConfig, overrides)
+
+
+def test_unknown_qp_solver_is_a_config_error():
+    with pytest.raises(ConfigError, match="solver.qp"):
+        RdaPlanner(build(PlannerConfig, {"solver": {"qp": "ecos"}}))
+
+
+def test_bicycle_model_tracks_too():
+    states, _, steps = drive(planner_for([[0, 0], [300, 0]], model="bicycle"), (0.0, 2.0, 0.0, 6.0), 100)
+    assert abs(states[-1, 1]) < 0.15 and states[-1, 3] == pytest.approx(10.0, abs=0.4)
+    assert all(step.status is TickStatus.SOLVED for step in steps)
+
+
+def test_route_projection_and_goal_speed():
+    route = Route(np.array([[0.0, 0.0], [10.0, 0.0], [10.0, 10.0]]))
+    point = route.project(np.array([[4.0, 1.0], [12.0, 6.0]]))
+    assert point.s == pytest.approx([4.0, 16.0]) and point.heading == pytest.approx([0.0, np.pi / 2])
+    assert route.length == 20.0 and route.remaining(np.array([10.0, 9.0])) == pytest.approx(1.0)
+    assert route.speed_limit(np.array([0.0, 20.0]), 10.0, 1.5) == pytest.approx([np.sqrt(60.0), 0.0])
+    with pytest.raises(ConfigError):
+        Route(np.array([[1.0, 1.0], [1.0, 1.0]]))

@@ -1,0 +1,97 @@
+"""ssf_planner_node in a running graph: the same commands as the in-process loop for replayed obstacles and
+odometry, stale inputs slow the car down (said once), and the simulator's latched route is followed."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from ssf_common import messages
+from ssf_common.conversions import obstacles_to_msg, odometry_to_msg, plan_to_msg
+from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node
+from ssf_common.records import OdometryEstimate, Plan
+from ssf_eval.nav.loop import ClosedLoop, TrialSpec
+from ssf_planner_node.node import PlannerNode
+from support import wait_until
+
+
+def odometry(tick) -> OdometryEstimate:
+    """The odometry message a tick's state stands for (pose and forward speed)."""
+    return OdometryEstimate(tick.state.stamp_ns, tick.pose, np.eye(6) * 1e-4,
+                            twist=np.array([tick.state.speed, 0, 0, 0, 0, 0.0]))
+
+
+def route_message(route) -> object:
+    waypoints = route.waypoints
+    heading = np.r_[np.arctan2(np.diff(waypoints[:, 1]), np.diff(waypoints[:, 0])), 0.0]
+    return plan_to_msg(Plan(0, route.frame_id, np.zeros(len(waypoints)), np.c_[waypoints, heading, np.zeros(len(waypoints))]))
+
+
+@pytest.fixture
+def graph():
+    started: list = []
+
+    def start(*parameters: str):
+        node = PlannerNode(argv=["--ros-args", "-p", "report_period_s:=60.0", *sum((["-p", p] for p in parameters), [])])
+        node.spin_in_thread()
+        probe = Node("probe")
+        commands: list = []
+        probe.create_subscription("geometry_msgs/msg/Twist", "/cmd_vel", commands.append)
+        probe.create_subscription("nav_msgs/msg/Path", "/ssf/plan", lambda _msg: None)
+        probe.spin_in_thread()
+        publishers = {name: probe.create_publisher(kind, topic, qos) for name, kind, topic, qos in (
+            ("odom", "nav_msgs/msg/Odometry", "/odom", QOS_DEFAULT),
+            ("obstacles", "ssf_interfaces/msg/ObstacleArray", "/ssf/obstacles", QOS_DEFAULT),
+            ("route", "nav_msgs/msg/Path", "/sim/route", QOS_LATCHED))}
+        started.extend([node, probe])
+        assert wait_until(lambda: all(publishers[name].get_subscription_count() > 0 for name in ("odom", "obstacles")))
+        return node, publishers, commands
+
+    yield start
+    for node in started:
+        node.request_shutdown()
+        node.on_shutdown()
+        node.destroy_node()
+
+
+def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odometry(graph):
+    loop = ClosedLoop(TrialSpec("gt", 100, 10, 120.0))
+    ticks = [loop.tick() for _ in range(6)]
+    assert any(len(tick.obstacles) for tick in ticks) and ticks[-1].command.linear > 0.5
+    node, publishers, commands = graph("solver.deadline_ms:=0.0")
+    publishers["route"].publish(route_message(loop.route))
+    assert wait_until(lambda: node.planner.route is not None)
+    assert node.planner.route.length == pytest.approx(loop.route.length)
+    for index, tick in enumerate(ticks):
+        publishers["obstacles"].publish(obstacles_to_msg(tick.obstacles))
+        assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == tick.state.stamp_ns)
+        publishers["odom"].publish(odometry_to_msg(odometry(tick)))
+        assert wait_until(lambda: len(commands) == index + 1), f"no /cmd_vel for tick {index}"
+        command = commands[index]
+        assert command.linear.x == pytest.approx(tick.command.linear, abs=1e-4)
+        assert command.angular.z == pytest.approx(tick.command.angular, abs=1e-4)
+    assert node.planner.stats.total == len(ticks) and node.planner.stats.fallbacks == 0
+
+
+def test_stale_obstacles_cap_the_speed_and_stale_odometry_brakes_each_said_once(graph, capfd):
+    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]", "stale_after_s:=0.3")
+    for index in range(3):  # odometry, but never an obstacle: stale
+        estimate = OdometryEstimate(index * 100_000_000, np.eye(4), np.eye(6), twist=np.array([1.5, 0, 0, 0, 0, 0.0]))
+        publishers["odom"].publish(odometry_to_msg(estimate))
+        assert wait_until(lambda: len(commands) >= index + 1)
+    assert all(command.linear.x <= node.config.stale_speed + 1e-6 for command in commands)
+    count = len(commands)
+    assert wait_until(lambda: len(commands) >= count + 3, timeout_s=5.0)  # the watchdog brakes
+    assert commands[-1].linear.x < commands[count - 1].linear.x and commands[-1].angular.z == 0.0
+    time.sleep(0.3)
+    log = capfd.readouterr().err
+    assert log.count("obstacles are stale") == 1 and log.count("odometry is stale") == 1
+
+
+def test_a_bad_route_parameter_is_a_config_error():
+    from ssf_common.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="route_waypoints"):
+        PlannerNode(argv=["--ros-args", "-p", "route_waypoints:=[1.0, 2.0, 3.0]"])
