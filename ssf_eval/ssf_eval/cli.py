@@ -9,8 +9,10 @@ def register(groups: CommandGroups) -> None:
     """Add the evaluation and benchmark commands."""
     from ssf_eval.flow import cli as flow
     from ssf_eval.nav import cli as nav
+    from ssf_eval.plan import cli as plan
     from ssf_eval.seg import cli as seg
 
     flow.register(groups)
     seg.register(groups)
     nav.register(groups)
+    plan.register(groups)

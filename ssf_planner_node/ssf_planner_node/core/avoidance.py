@@ -63,28 +63,23 @@ def _support(corners: np.ndarray, normals: np.ndarray) -> np.ndarray:
     return np.einsum("...vi,...ci->...cv", corners, normals).max(axis=-1)
 
 
+def _point_edge_vectors(points: np.ndarray, polygon: np.ndarray) -> np.ndarray:
+    """(..., P, E, 2) vectors from the nearest point of each polygon edge to each point."""
+    edge = np.roll(polygon, -1, axis=-2) - polygon  # (..., E, 2)
+    offset = points[..., :, None, :] - polygon[..., None, :, :]  # (..., P, E, 2)
+    length = np.maximum(np.sum(edge * edge, axis=-1), 1e-12)[..., None, :]
+    t = np.clip(np.sum(offset * edge[..., None, :, :], axis=-1) / length, 0.0, 1.0)
+    return offset - t[..., None] * edge[..., None, :, :]
+
+
 def _closest_direction(ego: np.ndarray, obstacle: np.ndarray) -> np.ndarray:
     """(..., 2) unit vector from the obstacle's closest point to the ego's (vertex-to-edge distances both ways)."""
-    best_gap = np.full(ego.shape[:-2], np.inf)
-    best_vector = np.zeros(ego.shape[:-2] + (2,))
-    for points, polygon, sign in ((ego, obstacle, 1.0), (obstacle, ego, -1.0)):
-        start = polygon
-        edge = np.roll(polygon, -1, axis=-2) - polygon  # (..., 4, 2)
-        for v in range(4):
-            point = points[..., v : v + 1, :]  # (..., 1, 2)
-            t = np.clip(np.einsum("...ei,...ei->...e", point - start, edge)
-                        / np.maximum(np.einsum("...ei,...ei->...e", edge, edge), 1e-12), 0.0, 1.0)
-            nearest = start + t[..., None] * edge
-            vector = sign * (point - nearest)  # points from the obstacle towards the ego
-            gap = np.linalg.norm(vector, axis=-1)  # (..., 4)
-            pick = gap.argmin(axis=-1)
-            gap_min = np.take_along_axis(gap, pick[..., None], axis=-1)[..., 0]
-            vec_min = np.take_along_axis(vector, pick[..., None, None], axis=-2)[..., 0, :]
-            better = gap_min < best_gap
-            best_gap = np.where(better, gap_min, best_gap)
-            best_vector = np.where(better[..., None], vec_min, best_vector)
-    length = np.linalg.norm(best_vector, axis=-1, keepdims=True)
-    return np.where(length > 1e-9, best_vector / np.maximum(length, 1e-12), 0.0)
+    vectors = np.concatenate([_point_edge_vectors(ego, obstacle).reshape(ego.shape[:-2] + (-1, 2)),
+                              -_point_edge_vectors(obstacle, ego).reshape(ego.shape[:-2] + (-1, 2))], axis=-2)
+    gaps = np.sum(vectors * vectors, axis=-1)
+    best = np.take_along_axis(vectors, gaps.argmin(axis=-1)[..., None, None], axis=-2)[..., 0, :]
+    length = np.linalg.norm(best, axis=-1, keepdims=True)
+    return np.where(length > 1e-9, best / np.maximum(length, 1e-12), 0.0)
 
 
 def separation(ego: np.ndarray, obstacle: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

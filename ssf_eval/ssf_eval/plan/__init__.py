@@ -1,0 +1,1 @@
+"""`ssf bench plan`: the MPC's solve time and fallbacks (no simulator needed)."""
