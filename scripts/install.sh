@@ -22,4 +22,4 @@ fi
 
 [ -x .venv/bin/python ] || python3 -m venv .venv
 echo "install: Python packages into .venv (first time takes a few minutes)" >&2
-.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[test]"
+.venv/bin/python -m pip install --quiet --disable-pip-version-check -e ".[test,ray]"

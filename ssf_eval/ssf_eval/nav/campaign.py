@@ -17,13 +17,29 @@ from ssf_common.errors import ConfigError, DataError
 from ssf_eval.nav.loop import TrialRecord, TrialSpec, run_trial
 
 
+@dataclass(frozen=True)
+class TrialFailure:
+    """A trial that raised instead of finishing: not logged, so a resumed campaign runs it again."""
+
+    key: str
+    error: str
+
+
+def attempt(spec: TrialSpec, trial: Callable[[TrialSpec], TrialRecord] = run_trial) -> TrialRecord | TrialFailure:
+    """Run one trial; an exception becomes a TrialFailure instead of ending the campaign."""
+    try:
+        return trial(spec)
+    except Exception as err:  # noqa: BLE001 - one broken trial must not lose the others
+        return TrialFailure(spec.key, f"{type(err).__name__}: {err}")
+
+
 def campaign_specs(perceptions: list[str], agents: list[int], trials: int, seed: int = 100,
                    route_length: float | None = None, time_limit: float | None = None, pose: str = "gt",
-                   planner: dict | None = None) -> list[TrialSpec]:
+                   planner: dict | None = None, scenario: dict | None = None) -> list[TrialSpec]:
     """Every (perception, agents, trial) with seeds seed .. seed + trials - 1: all cells see the same worlds."""
     if trials < 1:
         raise ConfigError(f"--trials must be at least 1, got {trials}")
-    return [TrialSpec(name, count, seed + index, route_length, time_limit, pose, dict(planner or {}))
+    return [TrialSpec(name, count, seed + index, route_length, time_limit, pose, dict(planner or {}), dict(scenario or {}))
             for count in agents for name in perceptions for index in range(trials)]
 
 
@@ -57,9 +73,9 @@ class TrialLog:
 
 
 class Runner(Protocol):
-    """Maps run_trial over specs, yielding records as trials finish (in any order)."""
+    """Maps `attempt` over specs, yielding records (or failures) as trials finish, in any order."""
 
-    def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord]:
+    def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord | TrialFailure]:
         """Run every spec; yield each record when it is done."""
 
 
@@ -70,11 +86,11 @@ class LocalRunner:
     workers: int = 1
     trial: Callable[[TrialSpec], TrialRecord] = run_trial
 
-    def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord]:
+    def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord | TrialFailure]:
         """Trials on the pool, at most `workers` at a time; pending ones are cancelled on Ctrl-C."""
         if self.workers <= 1:
             for spec in specs:
-                yield self.trial(spec)
+                yield attempt(spec, self.trial)
             return
         with ProcessPoolExecutor(max_workers=self.workers, initializer=_quiet_worker) as pool:
             pending: set[Future] = set()
@@ -82,7 +98,7 @@ class LocalRunner:
             try:
                 while queue or pending:
                     while queue and len(pending) < 2 * self.workers:
-                        pending.add(pool.submit(self.trial, queue.pop()))
+                        pending.add(pool.submit(attempt, queue.pop(), self.trial))
                     done, pending = wait(pending, return_when=FIRST_COMPLETED)
                     for future in done:
                         yield future.result()
@@ -100,7 +116,7 @@ class RayRunner:
     trial: Callable[[TrialSpec], TrialRecord] = run_trial
     options: dict = field(default_factory=dict)
 
-    def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord]:
+    def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord | TrialFailure]:
         """One task per trial (trials take seconds to minutes, far above Ray's per-task cost)."""
         try:
             import ray
@@ -110,8 +126,8 @@ class RayRunner:
         if started_here:
             address = None if self.address == "local" else self.address
             ray.init(address=address, include_dashboard=False, log_to_driver=False, **self.options)
-        remote = ray.remote(num_cpus=1)(self.trial)
-        pending = [remote.remote(spec) for spec in specs]
+        remote = ray.remote(num_cpus=1)(attempt)
+        pending = [remote.remote(spec, self.trial) for spec in specs]
         try:
             while pending:
                 done, pending = ray.wait(pending, num_returns=1)
@@ -157,9 +173,10 @@ class Progress:
         return cell[0], cell[1]
 
 
-def run_campaign(specs: list[TrialSpec], log: TrialLog, runner: Runner, out: TextIO = sys.stderr) -> list[TrialRecord]:
+def run_campaign(specs: list[TrialSpec], log: TrialLog, runner: Runner, out: TextIO | None = None) -> list[TrialRecord]:
     """Run the specs not yet in the log; every record is in the log as soon as its trial ends. Returns the log's
-    records for these specs (old and new)."""
+    records for these specs (old and new). Progress goes to `out` (default stderr)."""
+    out = out or sys.stderr
     finished = {record.key: record for record in log.records()}
     todo = [spec for spec in specs if spec.key not in finished]
     if finished:
@@ -167,6 +184,10 @@ def run_campaign(specs: list[TrialSpec], log: TrialLog, runner: Runner, out: Tex
     progress = Progress(len(todo), out)
     progress.seed_cells(finished[spec.key] for spec in specs if spec.key in finished)
     for record in runner.map(todo):
+        if isinstance(record, TrialFailure):
+            print(f"trial {record.key} failed ({record.error}); not logged, a resumed run retries it", file=out,
+                  flush=True)
+            continue
         log.append(record)
         finished[record.key] = record
         progress.update(record)

@@ -54,6 +54,7 @@ class TrialSpec:
     time_limit: float | None = None  # seconds; None: the scenario's, scaled to the route length
     pose: str = "gt"
     planner: dict[str, Any] = field(default_factory=dict)  # PlannerConfig overrides (dotted names)
+    scenario: dict[str, Any] = field(default_factory=dict)  # scenario overrides (dotted names), e.g. a lighter LiDAR
 
     @property
     def key(self) -> str:
@@ -104,11 +105,11 @@ class TrialRecord:
         return cls(**{name: data[name] for name in cls.__dataclass_fields__})
 
 
-def scenario_for(agents: int) -> tuple[Scenario, float]:
+def scenario_for(agents: int, settings: dict[str, Any] | None = None) -> tuple[Scenario, float]:
     """The shipped scenario of a density (or urban_100 with that many agents) and its time limit; the simulator's
     own time limit is lifted (the trial keeps its own)."""
     name = DENSITY_SCENARIOS.get(agents, "urban_100")
-    overrides: dict[str, Any] = {} if agents in DENSITY_SCENARIOS else {"agents.count": agents}
+    overrides: dict[str, Any] = {**({} if agents in DENSITY_SCENARIOS else {"agents.count": agents}), **(settings or {})}
     limit = load_scenario(name, overrides).episode.time_limit
     return load_scenario(name, {**overrides, "episode.time_limit": 100000.0}), limit
 
@@ -134,7 +135,7 @@ class ClosedLoop:
             raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), which is not on this branch; "
                               "use --pose gt")
         self.spec = spec
-        self.scenario, scenario_limit = scenario_for(spec.agents)
+        self.scenario, scenario_limit = scenario_for(spec.agents, spec.scenario)
         self.sim = Simulator(self.scenario, spec.seed)
         self.frame = self.sim.reset()
         self.world_to_odom = invert(self.frame.base_pose)  # the odometry frame: the ego's start pose

@@ -1,28 +1,20 @@
-"""The `ssf` perception source: the flow <-> segmentation loop on the last two whole scans, and an obstacle per
-moving instance (box, velocity from the flow with the ego motion removed), moved into the odometry frame."""
+"""The `ssf` perception source: the SSF pipeline (flow <-> segmentation loop, then an obstacle per moving instance)
+on the last two whole scans, its obstacles moved into the odometry frame by the sensor pose of the older scan."""
 
 from __future__ import annotations
 
 import numpy as np
-from pydantic import Field
 
-from ssf_common.config import Section, build
+from ssf_common.config import build
 from ssf_common.records import Obstacles
 from ssf_eval.nav.perception import ODOM_FRAME, Observation
-from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
-from ssf_seg_node.core.fusion import FusionConfig, FusionLoop
-from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles
-from ssf_seg_node.core.segmenter import SegConfig, make_segmenter
+from ssf_eval.pipeline import PerceptionConfig, SsfPerception as Pipeline
+from ssf_flow_node.core.estimator import WHOLE_SCAN
 
 
-class SsfConfig(Section):
-    """The cores the fusion node runs, with the node's defaults (whole scans)."""
-
-    flow: FlowConfig = Field(default_factory=lambda: build(FlowConfig, WHOLE_SCAN))
-    segmentation: SegConfig = SegConfig()
-    fusion: FusionConfig = FusionConfig()
-    obstacles: ObstacleConfig = ObstacleConfig()
-    device: str = "cpu"
+def whole_scan_config() -> PerceptionConfig:
+    """The pipeline as the graph's nodes run it on whole scans."""
+    return build(PerceptionConfig, {"flow": WHOLE_SCAN}, source="ssf perception")
 
 
 class SsfPerception:
@@ -31,25 +23,19 @@ class SsfPerception:
     name = "ssf"
     reads_scan = True
 
-    def __init__(self, config: SsfConfig | None = None) -> None:
-        self.config = config or SsfConfig()
-        estimator = make_estimator(config=self.config.flow, device=self.config.device)
-        segmenter = make_segmenter(config=self.config.segmentation, device=self.config.device)
-        self.loop = FusionLoop(estimator, segmenter, self.config.fusion)
-        self._previous: tuple[int, np.ndarray, np.ndarray, np.ndarray | None] | None = None  # stamp, points, pose, mask
+    def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu") -> None:
+        self.pipeline = Pipeline(config or whole_scan_config(), device)
+        self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, points, odom <- lidar
         self.iterations: list[int] = []
 
     def observe(self, observation: Observation) -> Obstacles:
         """Obstacles of the previous scan (stamped then), from its flow towards this scan."""
         frame = observation.frame
         points = np.ascontiguousarray(frame.scan.points[:, :3], dtype=np.float32)
-        previous, self._previous = self._previous, (frame.stamp_ns, points, observation.lidar_pose, None)
+        previous, self._previous = self._previous, (frame.stamp_ns, points, observation.lidar_pose)
         if previous is None:
             return Obstacles.empty(frame.stamp_ns, ODOM_FRAME)
-        stamp_ns, pc1, pose1, _ = previous
-        result = self.loop.run(pc1, points)
-        self.iterations.append(result.iterations)
-        dt = (frame.stamp_ns - stamp_ns) * 1e-9
-        seen = extract_obstacles(pc1, result.flow, result.segmentation, result.ego, dt, stamp_ns, "lidar",
-                                 self.config.obstacles)
-        return seen.transformed(pose1, ODOM_FRAME)
+        stamp_ns, pc1, pose1 = previous
+        seen = self.pipeline.perceive(pc1, points, stamp_ns=stamp_ns, frame_id="lidar")
+        self.iterations.append(seen.fusion.iterations)
+        return seen.obstacles.transformed(pose1, ODOM_FRAME)

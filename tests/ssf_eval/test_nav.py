@@ -1,0 +1,152 @@
+"""The navigation benchmark: Wilson intervals, the BARN score, a 2-trial campaign per perception source, resume after
+an interruption, Ray in local mode, the table and figure, and bad flags."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from dataclasses import replace
+
+import pytest
+
+from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
+from ssf_eval.nav.loop import PERCEPTION_NAMES, TrialOutcome, TrialRecord, TrialSpec, run_trial
+from ssf_eval.nav.stats import barn_score, summarise, wilson_interval
+
+LIGHT = {"lidar.columns": 256, "lidar.beams": 32}  # a lighter LiDAR keeps the trials quick
+
+
+def tiny(perceptions, trials=2, seed=10):
+    """Short trials (1.5 s of driving) of the 50-agent scenario."""
+    return campaign_specs(perceptions, [50], trials, seed, route_length=30.0, time_limit=1.5, scenario=LIGHT)
+
+
+@pytest.mark.parametrize("successes, trials, low, high", [
+    (5, 10, 0.2366, 0.7634), (0, 10, 0.0, 0.2775), (10, 10, 0.7225, 1.0), (1, 1, 0.2065, 1.0), (18, 20, 0.6990, 0.9721),
+])
+def test_wilson_intervals_on_hand_computed_cases(successes, trials, low, high):
+    assert wilson_interval(successes, trials) == pytest.approx((low, high), abs=1e-4)
+
+
+def test_wilson_rejects_impossible_counts_and_barn_score():
+    with pytest.raises(ValueError):
+        wilson_interval(3, 2)
+    assert wilson_interval(0, 0) == (0.0, 1.0)
+    assert barn_score(True, 100.0, 10.0, 10.0) == pytest.approx(0.5)  # at the reference speed: 2 OT floor
+    assert barn_score(True, 100.0, 40.0, 10.0) == pytest.approx(0.25)
+    assert barn_score(True, 100.0, 500.0, 10.0) == pytest.approx(0.125)  # 8 OT ceiling
+    assert barn_score(False, 100.0, 10.0, 10.0) == 0.0
+
+
+@pytest.mark.parametrize("perception", PERCEPTION_NAMES)
+def test_a_two_trial_campaign_per_perception_source(perception, tmp_path):
+    log = TrialLog(tmp_path / "trials.jsonl")
+    records = run_campaign(tiny([perception]), log, LocalRunner(1))
+    assert [record.seed for record in records] == [10, 11]
+    lines = (tmp_path / "trials.jsonl").read_text().splitlines()
+    assert len(lines) == 2 and {json.loads(line)["key"] for line in lines} == {record.key for record in records}
+    for record in records:
+        assert record.outcome in {outcome.value for outcome in TrialOutcome}
+        assert record.navigation_time_s == pytest.approx(1.5, abs=0.11) or record.outcome != "timeout"
+        assert record.path_length_m > 0.5 and record.route_length_m == pytest.approx(30.0, abs=0.01)
+        assert record.ticks >= 1 and record.step_ms_median > 0
+        if perception != "follower":
+            assert record.solve_ms_median > 0 and record.fallbacks == 0
+        if perception in ("dbscan", "dbscan0", "ssf"):
+            assert record.perception_ms_median > 0
+    (cell,) = summarise(records)
+    assert (cell.perception, cell.agents, cell.trials) == (perception, 50, 2)
+
+
+def fake_trial(spec: TrialSpec) -> TrialRecord:
+    """A trial without the simulator: succeeds on even seeds."""
+    won = spec.seed % 2 == 0
+    return TrialRecord(spec.key, spec.perception, spec.agents, spec.seed, "fake",
+                       "success" if won else "collision_pedestrian", "" if won else "pedestrian 3", 10.0, 6.0, 60.0,
+                       60.0, 0.5, 60.0, 100, 0, {}, 1.0, 2.0, 3.0, 0.0, 1.0, 0.0)
+
+
+class Interrupted(Exception):
+    pass
+
+
+def test_resume_after_an_interrupted_run(tmp_path):
+    specs = campaign_specs(["gt", "dbscan"], [50, 100], 3, seed=0)
+    calls: list[str] = []
+
+    def interrupted_after(count):
+        def trial(spec):
+            if len(calls) == count:
+                raise KeyboardInterrupt  # Ctrl-C in the middle of the campaign
+            calls.append(spec.key)
+            return fake_trial(spec)
+        return trial
+
+    log = TrialLog(tmp_path / "trials.jsonl")
+    with pytest.raises(KeyboardInterrupt):
+        run_campaign(specs, log, LocalRunner(1, interrupted_after(5)))
+    assert [record.key for record in log.records()] == calls == [spec.key for spec in specs[:5]]
+    with log.path.open("a") as handle:
+        handle.write('{"key": "gt/50/99')  # a torn line from a write cut short
+    calls.clear()
+    records = run_campaign(specs, log, LocalRunner(1, interrupted_after(100)))
+    assert calls == [spec.key for spec in specs[5:]]  # only what was missing
+    assert [record.key for record in records] == [spec.key for spec in specs]
+    cells = {(cell.perception, cell.agents): cell for cell in summarise(records)}
+    assert cells[("gt", 50)].successes == 2 and cells[("gt", 50)].collisions_by_kind["pedestrian"] == 1
+
+
+def test_a_failing_trial_is_reported_and_left_for_the_resume(tmp_path, capsys):
+    def broken(spec):
+        if spec.seed == 1:
+            raise RuntimeError("solver exploded")
+        return fake_trial(spec)
+
+    log = TrialLog(tmp_path / "trials.jsonl")
+    records = run_campaign(campaign_specs(["gt"], [50], 3, seed=0), log, LocalRunner(1, broken))
+    assert [record.seed for record in records] == [0, 2]
+    assert "gt/50/1/full/gt failed (RuntimeError: solver exploded)" in capsys.readouterr().err
+
+
+def test_a_process_pool_gives_the_same_records_as_one_process(tmp_path):
+    specs = tiny(["gt"], trials=2, seed=20)
+    alone = run_campaign(specs, TrialLog(tmp_path / "one.jsonl"), LocalRunner(1))
+    pooled = run_campaign(specs, TrialLog(tmp_path / "pool.jsonl"), LocalRunner(2))
+    strip = lambda record: replace(record, wall_s=0.0, solve_ms_median=0.0, solve_ms_p95=0.0, solve_ms_max=0.0,  # noqa: E731
+                                   perception_ms_median=0.0, step_ms_median=0.0)
+    assert [strip(record) for record in pooled] == [strip(record) for record in alone]
+
+
+def test_a_tiny_campaign_on_ray_in_local_mode(tmp_path):
+    pytest.importorskip("ray")
+    specs = campaign_specs(["gt", "follower"], [50], 2, seed=0)
+    records = run_campaign(specs, TrialLog(tmp_path / "ray.jsonl"), RayRunner("local", local_mode=True, trial=fake_trial,
+                                                                            options={"num_cpus": 1}))
+    assert sorted(record.key for record in records) == sorted(spec.key for spec in specs)
+    assert len((tmp_path / "ray.jsonl").read_text().splitlines()) == 4
+
+
+def test_the_table_and_the_figure(tmp_path):
+    from ssf_eval.nav.cli import format_table
+    from ssf_eval.nav.plot import plot_cells
+
+    records = [fake_trial(spec) for spec in campaign_specs(["gt", "ssf"], [50, 100], 4, seed=0)]
+    cells = summarise(records)
+    table = format_table(cells)
+    assert "| gt | 50 | 0.50 (0.15–0.85) | 10.0 | 6.00 | 2 | 0 | 0 |" in table
+    plot_cells(cells, tmp_path / "nav.png", "fake")
+    assert (tmp_path / "nav.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("flags, message", [
+    (["--perception", "lidar-magic"], "unknown source 'lidar-magic'"),
+    (["--agents", "many"], "--agents expects comma-separated integers"),
+    (["--pose", "ssf"], "--pose ssf needs the SSF odometry core"),
+    (["--route-length", "5"], "--route-length must be at least 20 m"),
+    (["-p", "horizon:=1"], "horizon"),
+])
+def test_bad_flags_are_one_line(flags, message, tmp_path):
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "eval", "nav", "--resume",
+                             str(tmp_path / "t.jsonl"), *flags], capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and message in result.stderr and len(result.stderr.strip().splitlines()) == 1
