@@ -44,6 +44,13 @@ def predicted_corners(obstacles: Obstacles, times: np.ndarray, static_speed: flo
     return replace(obstacles, velocities=velocities).predicted_corners(np.asarray(times, dtype=np.float64))
 
 
+def within_range(obstacles: Obstacles, xy: np.ndarray, time: float, max_range: float, static_speed: float) -> np.ndarray:
+    """Indices of the obstacles whose centre, moved on to `time`, lies within max_range of xy."""
+    moving = np.linalg.norm(obstacles.velocities[:, :2], axis=1) > static_speed
+    centres = obstacles.centres[:, :2] + np.where(moving[:, None], obstacles.velocities[:, :2], 0.0) * time
+    return np.flatnonzero(np.linalg.norm(centres - xy, axis=1) <= max_range)
+
+
 def nearest_obstacles(corners: np.ndarray, ego_xy: np.ndarray, ego_radius: float, count: int, max_range: float) -> np.ndarray:
     """Indices of up to `count` obstacles nearest to the planned motion: smallest gap, over the horizon, between
     each obstacle's predicted footprint and the ego's planned position at the same time (nearest first)."""

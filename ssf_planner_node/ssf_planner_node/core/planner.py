@@ -123,6 +123,8 @@ class RdaPlanner:
         # 2. the obstacles nearest to the planned motion, their footprints predicted over the horizon
         latency = (state.stamp_ns - obstacles.stamp_ns) * 1e-9 if len(obstacles) else 0.0
         times = latency + cfg.dt * np.arange(cfg.horizon + 1)
+        obstacles = obstacles.take(avoidance.within_range(obstacles, nominal[0, :2], latency, cfg.obstacles.range,
+                                                          cfg.obstacles.static_speed))
         corners = avoidance.predicted_corners(obstacles, times, cfg.obstacles.static_speed)
         chosen = avoidance.nearest_obstacles(corners, nominal[:, :2], self._ego_radius, cfg.obstacles.max_obstacles,
                                              cfg.obstacles.range)
