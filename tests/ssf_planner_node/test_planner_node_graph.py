@@ -61,9 +61,9 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
     ticks = [loop.tick() for _ in range(6)]
     assert any(len(tick.obstacles) for tick in ticks) and ticks[-1].command.linear > 0.5
     node, publishers, commands = graph("solver.deadline_ms:=0.0")
-    publishers["route"].publish(route_message(loop.route))
+    publishers["route"].publish(route_message(loop.planner.route))
     assert wait_until(lambda: node.planner.route is not None)
-    assert node.planner.route.length == pytest.approx(loop.route.length)
+    assert node.planner.route.length == pytest.approx(loop.planner.route.length)
     for index, tick in enumerate(ticks):
         publishers["obstacles"].publish(obstacles_to_msg(tick.obstacles))
         assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == tick.state.stamp_ns)

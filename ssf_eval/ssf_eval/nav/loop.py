@@ -139,19 +139,25 @@ class ClosedLoop:
         self.sim = Simulator(self.scenario, spec.seed)
         self.frame = self.sim.reset()
         self.world_to_odom = invert(self.frame.base_pose)  # the odometry frame: the ego's start pose
-        waypoints = self.sim.route_waypoints(spec.route_length)
-        self.route = Route((waypoints @ self.world_to_odom[:3, :3].T + self.world_to_odom[:3, 3])[:, :2], ODOM_FRAME)
+        # both drivers follow the whole route (the follower knows no other); the trial is won `route_length` along it
+        self.route = self._route(spec.route_length)
+        drive = self.route if spec.route_length is None else self._route(None)
         self.time_limit = spec.time_limit or max(60.0, scenario_limit * self.route.length / self.sim.world.route_length)
         self.follower = self.sim.follower() if spec.perception == "follower" else None
         self.perception = None if self.follower else make_perception(spec.perception)
         # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
         settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
-        self.planner = None if self.follower else RdaPlanner(settings, self.route)
+        self.planner = None if self.follower else RdaPlanner(settings, drive)
         self.solve_ms: list[float] = []
         self.perceive_ms: list[float] = []
         self.step_ms: list[float] = []
         self.progress = [(0.0, 0.0)]  # (time, arc length) whenever the ego got STUCK_PROGRESS_M further
         self.outcome: TrialOutcome | None = None
+
+    def _route(self, length: float | None) -> Route:
+        """The route's first `length` metres (all of it: None) in the odometry frame."""
+        waypoints = self.sim.route_waypoints(length)
+        return Route((waypoints @ self.world_to_odom[:3, :3].T + self.world_to_odom[:3, 3])[:, :2], ODOM_FRAME)
 
     def tick(self) -> Tick:
         """Perceive, plan, step the simulator, judge the trial."""
