@@ -5,6 +5,7 @@ the pose at their stamp. Stale obstacles cap the speed, stale odometry brakes, e
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -13,7 +14,8 @@ from ssf_common import messages, pose_msgs, topics
 from ssf_common.conversions import obstacles_from_msg, odometry_from_msg, plan_from_msg, plan_to_msg
 from ssf_common.errors import ConfigError, MessageError, SsfError
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
-from ssf_common.records import Obstacles
+from ssf_common.geometry.se3 import invert
+from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import PoseHistory, obstacles_in_route_frame, state_of
 from ssf_planner_node.core.models import Command
@@ -32,6 +34,10 @@ class PlannerNode(Node):
         waypoints = self.declare_parameter("route_waypoints", []).value  # x0, y0, x1, y1, ... (odometry frame)
         route_topic = self.declare_parameter("route_topic", topics.ROUTE).value
         report_period = self.declare_parameter("report_period_s", 5.0).value
+        # world-frame odometry (e.g. /sim/ground_truth/odom remapped to /odom): its first pose becomes the origin of
+        # the route's frame, as an odometry node's frame would start at the first scan
+        self.anchor_odometry = self.declare_parameter("anchor_first_odometry", False).value
+        self.anchor: np.ndarray | None = None
         self.planner = RdaPlanner(self.config)
         if waypoints:
             self.planner.set_route(self._route_from_parameter(waypoints))
@@ -89,6 +95,8 @@ class PlannerNode(Node):
         except MessageError as err:
             self.get_logger().warning(f"dropped a message on {topics.ODOM}: {err}")
             return
+        if self.anchor_odometry:
+            odometry = self._anchored(odometry)
         self.poses.add(odometry.stamp_ns, odometry.pose)
         self.last_odometry_s = self.get_clock().now_s()
         self._said_if(False, "odometry")
@@ -101,6 +109,15 @@ class PlannerNode(Node):
         if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
             self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
 
+    def _anchored(self, odometry: OdometryEstimate) -> OdometryEstimate:
+        """Odometry re-expressed from its first pose, in the route's frame."""
+        if self.anchor is None:
+            self.anchor = invert(odometry.pose)
+            self.anchor_frame = odometry.frame_id
+            self.get_logger().info(f"route frame anchored at the first pose in '{odometry.frame_id}'")
+        frame = self.planner.route.frame_id if self.planner.route is not None else "odom"
+        return replace(odometry, pose=self.anchor @ odometry.pose, frame_id=frame)
+
     def _obstacles_now(self, odom_frame: str, stamp_ns: int) -> Obstacles | None:
         """The newest obstacles in the route's frame, or None when they are stale or cannot be placed."""
         route_frame = self.planner.route.frame_id if self.planner.route is not None else odom_frame
@@ -109,6 +126,8 @@ class PlannerNode(Node):
                           "obstacles cannot be placed")
             return None
         obstacles = self.obstacles
+        if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
+            obstacles = obstacles.transformed(self.anchor, route_frame)
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
         if age > self.config.stale_after_s:
             self._said_if(True, "obstacles", f"obstacles are stale ({'none yet' if obstacles is None else f'{age:.1f} s old'}): "

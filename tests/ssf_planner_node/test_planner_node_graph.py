@@ -11,7 +11,7 @@ import pytest
 from ssf_common import messages
 from ssf_common.conversions import obstacles_to_msg, odometry_to_msg, plan_to_msg
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node
-from ssf_common.records import OdometryEstimate, Plan
+from ssf_common.records import Obstacles, OdometryEstimate, Plan
 from ssf_eval.nav.loop import ClosedLoop, TrialSpec
 from ssf_planner_node.node import PlannerNode
 from support import wait_until
@@ -95,3 +95,22 @@ def test_a_bad_route_parameter_is_a_config_error():
 
     with pytest.raises(ConfigError, match="route_waypoints"):
         PlannerNode(argv=["--ros-args", "-p", "route_waypoints:=[1.0, 2.0, 3.0]"])
+
+
+def test_world_frame_odometry_is_anchored_at_its_first_pose(graph):
+    from ssf_common.geometry.se3 import make_pose
+
+    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]", "anchor_first_odometry:=true")
+    start = make_pose(250.0, -40.0, 3.0, yaw=2.0)  # where the ego stands in the world
+    for index in range(3):
+        ahead = start @ make_pose(0.5 * index)
+        estimate = OdometryEstimate(index * 100_000_000, ahead, np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]),
+                                    frame_id="world")
+        publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(index * 100_000_000, "world")))
+        assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == index * 100_000_000)
+        publishers["odom"].publish(odometry_to_msg(estimate))
+        assert wait_until(lambda: len(commands) == index + 1)
+    state = node.poses.at(200_000_000)
+    assert state[:3, 3] == pytest.approx([1.0, 0.0, 0.0], abs=1e-9)  # 1 m along the route from its origin
+    assert all(command.linear.x > 5.0 and abs(command.angular.z) < 0.05 for command in commands)  # on its way
+    assert "obstacles" not in node.said and "frames" not in node.said
