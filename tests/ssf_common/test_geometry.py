@@ -189,3 +189,13 @@ def test_min_area_rectangle_of_a_rotated_box():
     assert box.centre[2] == pytest.approx(0.75)
     centre, sides, _ = min_area_rectangle(np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]]))  # collinear
     np.testing.assert_allclose(sides, [np.sqrt(8), 0.0], atol=1e-9)
+
+
+def test_boxes_corners_is_box_corners_for_many():
+    from ssf_common.geometry.boxes import boxes_corners
+
+    rng = np.random.default_rng(5)
+    centres, lengths, widths, yaws = rng.normal(size=(9, 3)), rng.uniform(1, 5, 9), rng.uniform(0.5, 3, 9), rng.uniform(-4, 4, 9)
+    expected = np.array([box_corners(centres[i], lengths[i], widths[i], yaws[i]) for i in range(9)])
+    assert np.allclose(boxes_corners(centres, lengths, widths, yaws), expected, atol=1e-12)
+    assert boxes_corners(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)).shape == (0, 4, 2)

@@ -59,3 +59,14 @@ def box_corners(centre: np.ndarray, length: float, width: float, yaw: float) -> 
     c, s = np.cos(yaw), np.sin(yaw)
     half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]]) * [length / 2, width / 2]
     return np.asarray(centre)[:2] + half @ np.array([[c, s], [-s, c]])
+
+
+def boxes_corners(centres: np.ndarray, lengths: np.ndarray, widths: np.ndarray, yaws: np.ndarray) -> np.ndarray:
+    """The footprint corners (M, 4, 2) of M boxes at once, counter-clockwise (box_corners for many)."""
+    centres = np.asarray(centres, dtype=np.float64).reshape(-1, np.shape(centres)[-1])[:, :2]
+    c, s = np.cos(yaws), np.sin(yaws)
+    half = np.array([[1, 1], [-1, 1], [-1, -1], [1, -1]], dtype=np.float64)
+    along = half[None, :, 0] * (np.asarray(lengths) / 2)[:, None]  # (M, 4) along the length axis
+    across = half[None, :, 1] * (np.asarray(widths) / 2)[:, None]
+    return centres[:, None, :] + np.stack([along * c[:, None] - across * s[:, None],
+                                           along * s[:, None] + across * c[:, None]], axis=-1)

@@ -10,12 +10,11 @@ obstacle and footprint. That is what the primal problem constrains; the dual ste
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import NamedTuple
 
 import numpy as np
 
-from ssf_common.geometry.boxes import box_corners
+from ssf_common.geometry.boxes import boxes_corners
 from ssf_common.records import Obstacles
 
 INACTIVE_OFFSET = -1.0e4  # n = 0, offset far below: the constraint of an empty slot always holds
@@ -33,15 +32,17 @@ class Hyperplanes(NamedTuple):
 
 def footprint_corners(xy: np.ndarray, yaw: np.ndarray, length: float, width: float) -> np.ndarray:
     """(T, 4, 2) corners of the ego footprint at positions (T, 2) and headings (T,), counter-clockwise."""
-    return np.array([box_corners(centre, length, width, heading) for centre, heading in zip(xy, yaw)]).reshape(-1, 4, 2)
+    count = len(xy)
+    return boxes_corners(xy, np.full(count, length), np.full(count, width), np.asarray(yaw, dtype=np.float64))
 
 
 def predicted_corners(obstacles: Obstacles, times: np.ndarray, static_speed: float) -> np.ndarray:
     """(T, M, 4, 2) footprints at times (s after the obstacles' stamp), moved with constant velocity; obstacles
     slower than static_speed stay where they are."""
     moving = np.linalg.norm(obstacles.velocities[:, :2], axis=1) > static_speed
-    velocities = np.where(moving[:, None], obstacles.velocities, 0.0)
-    return replace(obstacles, velocities=velocities).predicted_corners(np.asarray(times, dtype=np.float64))
+    velocities = np.where(moving[:, None], obstacles.velocities[:, :2], 0.0)
+    now = boxes_corners(obstacles.centres, obstacles.sizes[:, 0], obstacles.sizes[:, 1], obstacles.yaws)
+    return now[None] + np.asarray(times, dtype=np.float64)[:, None, None, None] * velocities[None, :, None, :]
 
 
 def within_range(obstacles: Obstacles, xy: np.ndarray, time: float, max_range: float, static_speed: float) -> np.ndarray:
