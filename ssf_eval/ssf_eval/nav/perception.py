@@ -1,12 +1,14 @@
 """Perception sources of the navigation benchmark, all feeding the same planner: the simulator's boxes (`gt`),
 DBSCAN clusters of the scan tracked between frames (`dbscan`) or standing still (`dbscan0`), and semantic scene
 flow (`ssf`: the flow <-> segmentation loop, obstacles from the moving instances). Each turns one simulator frame
-into obstacles in the odometry frame; only `dbscan*` and `ssf` read the LiDAR scan."""
+into obstacles in the odometry frame; only `dbscan*` and `ssf` read the LiDAR scan. Still things (structure,
+parked or queuing cars) are obstacles for every source: `dbscan*` and `ssf` cluster what they see as still, `gt`
+knows every agent (moving or not; the simulator's structure stays off the road)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import dataclass, field, replace
+from typing import NamedTuple, Protocol
 
 import numpy as np
 from pydantic import Field
@@ -107,22 +109,9 @@ class DbscanPerception:
     def observe(self, observation: Observation) -> Obstacles:
         """Clusters of this scan as boxes in the odometry frame, with tracked velocities."""
         frame = observation.frame
-        points = clustered_points(frame.scan.points, self.config)
-        odom = points @ observation.lidar_pose[:3, :3].T + observation.lidar_pose[:3, 3]
-        labels, count = dbscan(odom[:, :2], self.config.eps, self.config.min_samples)
-        sizes_of = label_counts(labels[labels >= 0], count)
-        keep = np.flatnonzero(sizes_of >= self.config.min_points)
-        order = np.argsort(labels, kind="stable")
-        members = np.split(odom[order], np.searchsorted(labels[order], np.arange(count + 1)))[1:-1]
-        boxes = [bounding_box(members[k]) for k in keep]
-        centres = np.array([members[k][:, :2].mean(axis=0) for k in keep]).reshape(-1, 2)
-        sizes = np.array([box.size for box in boxes]).reshape(-1, 3)
-        velocities, ids = self._velocities(centres, sizes, frame.stamp_ns)
-        kinds = np.where(sizes[:, 0] >= self.config.vehicle_length, ObstacleKind.VEHICLE, ObstacleKind.PEDESTRIAN)
-        return Obstacles(frame.stamp_ns, ODOM_FRAME, ids=ids, kinds=kinds,
-                         centres=np.array([box.centre for box in boxes]).reshape(-1, 3), sizes=sizes,
-                         yaws=np.array([box.yaw for box in boxes]), velocities=np.c_[velocities, np.zeros(len(ids))],
-                         point_counts=sizes_of[keep])
+        found = cluster_boxes(frame.scan.points, observation.lidar_pose, frame.stamp_ns, self.config)
+        velocities, ids = self._velocities(found.means, found.boxes.sizes, frame.stamp_ns)
+        return replace(found.boxes, ids=ids, velocities=np.c_[velocities, np.zeros(len(ids))])
 
     def _velocities(self, centres: np.ndarray, sizes: np.ndarray, stamp_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """Associate clusters with the previous frame's tracks; velocities (M, 2) and track ids (M,)."""
@@ -145,6 +134,41 @@ class DbscanPerception:
         if not self.track:
             return np.zeros((count, 2)), ids
         return np.where(ages[:, None] >= 2, velocities, 0.0), ids
+
+
+class Clusters(NamedTuple):
+    """DBSCAN clusters of a scan as still boxes (odometry frame), and the mean of each cluster's points (what
+    tracking follows: steadier than the rectangle's centre as the view changes)."""
+
+    boxes: Obstacles
+    means: np.ndarray  # (M, 2)
+
+
+def cluster_boxes(points: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int, config: DbscanConfig) -> Clusters:
+    """The DBSCAN clusters of a scan's points (sensor frame) above the ground, as boxes in the odometry frame."""
+    points = clustered_points(points, config)
+    odom = points @ lidar_pose[:3, :3].T + lidar_pose[:3, 3]
+    labels, count = dbscan(odom[:, :2], config.eps, config.min_samples)
+    sizes_of = label_counts(labels[labels >= 0], count)
+    keep = np.flatnonzero(sizes_of >= config.min_points)
+    order = np.argsort(labels, kind="stable")
+    members = np.split(odom[order], np.searchsorted(labels[order], np.arange(count + 1)))[1:-1]
+    boxes = [bounding_box(members[k]) for k in keep]
+    sizes = np.array([box.size for box in boxes]).reshape(-1, 3)
+    kinds = np.where(sizes[:, 0] >= config.vehicle_length, ObstacleKind.VEHICLE, ObstacleKind.PEDESTRIAN)
+    means = np.array([members[k][:, :2].mean(axis=0) for k in keep]).reshape(-1, 2)
+    boxes_found = Obstacles(stamp_ns, ODOM_FRAME, ids=np.zeros(len(keep), np.int64), kinds=kinds,
+                            centres=np.array([box.centre for box in boxes]).reshape(-1, 3), sizes=sizes,
+                            yaws=np.array([box.yaw for box in boxes]), velocities=np.zeros((len(keep), 3)),
+                            point_counts=sizes_of[keep])
+    return Clusters(boxes_found, means)
+
+
+def stack(first: Obstacles, second: Obstacles) -> Obstacles:
+    """The obstacles of both (same frame), first's stamp."""
+    columns = ("ids", "kinds", "centres", "sizes", "yaws", "velocities", "velocity_covariances", "yaw_rates",
+               "point_counts", "confidences")
+    return replace(first, **{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in columns})
 
 
 def clustered_points(points: np.ndarray, config: DbscanConfig) -> np.ndarray:
@@ -182,5 +206,5 @@ def make_perception(name: str, **settings) -> Perception:
     if name == "ssf":
         from ssf_eval.nav.ssf_source import SsfPerception
 
-        return SsfPerception(settings.get("ssf"))
+        return SsfPerception(settings.get("ssf"), settings.get("dbscan"))
     raise ConfigError(f"unknown perception '{name}'; choose one of gt, dbscan, dbscan0, ssf (or follower)")

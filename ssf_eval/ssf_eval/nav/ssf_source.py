@@ -1,5 +1,6 @@
-"""The `ssf` perception source: the SSF pipeline (flow <-> segmentation loop, then an obstacle per moving instance)
-on the last two whole scans, its obstacles moved into the odometry frame by the sensor pose of the older scan."""
+"""The `ssf` perception source: the SSF pipeline (flow <-> segmentation loop, then an obstacle per moving instance,
+its velocity from the flow) on the last two whole scans, plus the static part of the segmentation clustered into
+still boxes (as `dbscan` clusters a whole scan); all in the odometry frame, stamped with the older scan."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import numpy as np
 
 from ssf_common.config import build
 from ssf_common.records import Obstacles
-from ssf_eval.nav.perception import ODOM_FRAME, Observation
+from ssf_eval.nav.perception import ODOM_FRAME, DbscanConfig, Observation, cluster_boxes, stack
 from ssf_eval.pipeline import PerceptionConfig, SsfPerception as Pipeline
 from ssf_flow_node.core.estimator import WHOLE_SCAN
 
@@ -23,8 +24,10 @@ class SsfPerception:
     name = "ssf"
     reads_scan = True
 
-    def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu") -> None:
+    def __init__(self, config: PerceptionConfig | None = None, clusters: DbscanConfig | None = None,
+                 device: str = "cpu") -> None:
         self.pipeline = Pipeline(config or whole_scan_config(), device)
+        self.clusters = clusters or DbscanConfig()
         self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, points, odom <- lidar
         self.iterations: list[int] = []
 
@@ -38,4 +41,6 @@ class SsfPerception:
         stamp_ns, pc1, pose1 = previous
         seen = self.pipeline.perceive(pc1, points, stamp_ns=stamp_ns, frame_id="lidar")
         self.iterations.append(seen.fusion.iterations)
-        return seen.obstacles.transformed(pose1, ODOM_FRAME)
+        moving = seen.obstacles.transformed(pose1, ODOM_FRAME)
+        still = cluster_boxes(pc1[~seen.fusion.segmentation.dynamic], pose1, stamp_ns, self.clusters).boxes
+        return stack(moving, still)
