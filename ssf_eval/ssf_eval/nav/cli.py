@@ -49,14 +49,15 @@ def run_eval(args: argparse.Namespace) -> int:
     """ssf eval nav."""
     import os
 
-    from ssf_common.config import build
+    import math
+
+    from ssf_common.config import build, parse_overrides
     from ssf_common.errors import ConfigError
     from ssf_common.paths import check_writable
     from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
     from ssf_eval.nav.loop import PERCEPTION_NAMES
     from ssf_eval.nav.stats import summarise
     from ssf_eval.results import write_result
-    from ssf_flow_node.cli import parse_overrides
     from ssf_planner_node.core.config import PlannerConfig
 
     perceptions = [name.strip() for name in args.perception.split(",") if name.strip()]
@@ -66,8 +67,16 @@ def run_eval(args: argparse.Namespace) -> int:
     agents = _counts(args.agents)
     if args.pose == "ssf":
         raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), not on this branch yet; use --pose gt")
-    if args.route_length is not None and args.route_length < 20:
+    if args.route_length is not None and not (math.isfinite(args.route_length) and args.route_length >= 20):
         raise ConfigError(f"--route-length must be at least 20 m, got {args.route_length:g}")
+    if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):
+        raise ConfigError(f"--time-limit must be a positive number of seconds, got {args.time_limit:g}")
+    if args.trials < 1:
+        raise ConfigError(f"--trials must be at least 1, got {args.trials}")
+    if not 0 <= args.seed <= 2**32 - 1 - args.trials:
+        raise ConfigError(f"--seed must be from 0 to 2^32 - 1 - trials, got {args.seed}")
+    if args.workers is not None and args.workers < 1:
+        raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     overrides = parse_overrides(args.param, "-p")
     planner = build(PlannerConfig, overrides, source="-p")
     for path, what in ((args.json, "result file"), (args.plot, "picture")):

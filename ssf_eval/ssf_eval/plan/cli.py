@@ -31,15 +31,16 @@ def run_bench_command(args: argparse.Namespace) -> int:
     """ssf bench plan."""
     import resource
 
-    from ssf_common.config import build, read_yaml
+    from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_common.errors import ConfigError
     from ssf_common.paths import check_writable
-    from ssf_flow_node.cli import parse_overrides
     from ssf_planner_node.core.bench import run_bench
     from ssf_planner_node.core.config import PlannerConfig
 
     if args.ticks < 1:
         raise ConfigError(f"--ticks must be at least 1, got {args.ticks}")
+    if not 0 <= args.seed <= 2**32 - 1:
+        raise ConfigError(f"--seed must be from 0 to 2^32 - 1, got {args.seed}")
     try:
         counts = [int(item) for item in args.obstacles.split(",") if item.strip()]
     except ValueError:
