@@ -145,6 +145,7 @@ def test_the_table_and_the_figure(tmp_path):
     (["--pose", "ssf"], "--pose ssf needs the SSF odometry core"),
     (["--route-length", "5"], "--route-length must be at least 20 m"),
     (["-p", "horizon:=1"], "horizon"),
+    (["--table-only"], "--table-only needs --resume FILE"),
 ])
 def test_bad_flags_are_one_line(flags, message, tmp_path):
     result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "eval", "nav", "--resume",

@@ -38,6 +38,8 @@ def register(groups: CommandGroups) -> None:
                        "(needs pip install '.[ray]')")
     nav.add_argument("--resume", type=Path, metavar="FILE", help="trial log (JSONL) to append to; trials it holds are "
                      "skipped (default: a new nav_trials_<time>.jsonl here)")
+    nav.add_argument("--table-only", action="store_true",
+                     help="run nothing: the table (and --json, --plot) of the trials the --resume log already holds")
     nav.add_argument("--json", type=Path, help="write the table (one row per cell) and the effective config here")
     nav.add_argument("--plot", type=Path, metavar="PNG", help="success rate, time and speed against agents")
     nav.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
@@ -82,6 +84,8 @@ def run_eval(args: argparse.Namespace) -> int:
     for path, what in ((args.json, "result file"), (args.plot, "picture")):
         if path is not None:
             check_writable(path, what)
+    if args.table_only and (args.resume is None or not args.resume.is_file()):
+        raise ConfigError("--table-only needs --resume FILE: an existing trial log")
     log_path = args.resume or Path(f"nav_trials_{time.strftime('%Y%m%d_%H%M%S')}.jsonl")
     check_writable(log_path, "trial log")
     specs = campaign_specs(perceptions, agents, args.trials, args.seed, args.route_length, args.time_limit, args.pose,
@@ -89,7 +93,11 @@ def run_eval(args: argparse.Namespace) -> int:
     runner = RayRunner(args.ray) if args.ray else LocalRunner(args.workers or os.cpu_count() or 1)
     print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "
           f"route {args.route_length or 'full'} m, trial log {log_path}", file=sys.stderr)
-    records = run_campaign(specs, TrialLog(log_path), runner)
+    if args.table_only:
+        wanted = {spec.key for spec in specs}
+        records = [record for record in TrialLog(log_path).records() if record.key in wanted]
+    else:
+        records = run_campaign(specs, TrialLog(log_path), runner)
     cells = summarise(records, planner.reference_speed)
     print(format_table(cells))
     protocol = {"agents": agents, "perception": perceptions, "trials": args.trials, "seed": args.seed,
