@@ -49,16 +49,16 @@ class PlannerNode(Node):
         self.said: set[str] = set()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
-        self.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles, QOS_DEFAULT)
-        self.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
-        self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
-        if self.planner.route is None:
-            self.create_subscription("nav_msgs/msg/Path", route_topic, self.on_route, QOS_LATCHED)
         self.create_timer(self.config.control_period, self.watchdog)
         self.create_timer(report_period, self._report)
         source = "parameter route_waypoints" if self.planner.route is not None else route_topic
         self.get_logger().info(f"{self.config.model.value} MPC, horizon {self.config.horizon} x {self.config.dt:g} s, "
                                f"K = {self.config.obstacles.max_obstacles}, route from {source}")
+        if self.planner.route is None:
+            self.create_subscription("nav_msgs/msg/Path", route_topic, self.on_route, QOS_LATCHED)
+        self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
+        self.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles, QOS_DEFAULT)
 
     def _route_from_parameter(self, values: list[float]) -> Route:
         if len(values) % 2 or len(values) < 4:
