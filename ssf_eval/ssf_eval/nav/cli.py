@@ -109,7 +109,9 @@ def run_eval(args: argparse.Namespace) -> int:
     if args.plot:
         from ssf_eval.nav.plot import plot_cells
 
-        print(plot_cells(cells, args.plot, f"{args.trials} trials per cell, route {args.route_length or 'full'} m"),
+        counts = sorted({cell.trials for cell in cells}) or [0]
+        trials = f"{counts[0]}" if len(counts) == 1 else f"{counts[0]}-{counts[-1]}"
+        print(plot_cells(cells, args.plot, f"{trials} trials per cell, route {args.route_length or 'full'} m"),
               file=sys.stderr)
     return 0
 
