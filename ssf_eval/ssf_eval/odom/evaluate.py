@@ -1,0 +1,181 @@
+"""The odometry evaluation: every method on the very same scans, streamed frame by frame (flow and segmentation
+computed once per scan and shared), KISS-ICP beside them, map trails sampled along the way."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+
+from ssf_common.dataset.masks import noisy_mask
+from ssf_common.dataset.pairs import make_pair
+from ssf_common.geometry.sampling import voxel_indices
+from ssf_common.geometry.se3 import invert, transform_points
+from ssf_eval.odom.metrics import OdomScores, score
+from ssf_eval.odom.sequence import SimScan
+from ssf_eval.odom.trails import SweptPaths
+from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
+
+KISS_ICP = "kiss-icp"
+METHODS = ("points", "flow", "ssf")
+
+
+class MaskSource(str, Enum):
+    """Where the static mask comes from: the segmentation (fusion loop), or ground-truth stand-ins for ablations."""
+
+    SEG = "seg"
+    GT = "gt"
+    NOISY = "noisy"
+
+
+@dataclass(frozen=True)
+class Perceived:
+    """What perception hands the odometry for one scan."""
+
+    flow_plain: np.ndarray  # flow without any mask (the 'flow' variant: no segmentation)
+    flow: np.ndarray  # flow with the static mask (ssf)
+    dynamic_prob: np.ndarray  # (N,) probability that each point moves
+    ms: float
+
+
+class Perception:
+    """Scene flow from the project's estimator on whole scans and the static mask from the chosen source."""
+
+    def __init__(self, masks: MaskSource, estimator, fusion=None, seed: int = 0) -> None:
+        self.masks = MaskSource(masks)
+        self.estimator = estimator
+        self.fusion = fusion
+        self.rng = np.random.default_rng(seed)
+
+    def __call__(self, scan: SimScan) -> Perceived:
+        """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
+        started = time.perf_counter()
+        if self.masks is MaskSource.SEG:
+            result = self.fusion.run(scan.points, scan.next_points)
+            return Perceived(result.steps[0].flow, result.flow, result.segmentation.dynamic_prob,
+                             (time.perf_counter() - started) * 1e3)
+        if self.masks is MaskSource.GT:
+            mask = scan.dynamic.astype(np.float32)
+        else:
+            pair = make_pair(scan.points, scan.next_points, np.zeros_like(scan.points), scan.dynamic, scan.instance)
+            mask = noisy_mask(pair, self.rng)
+        plain = self.estimator.estimate(scan.points, scan.next_points).flow
+        masked = self.estimator.estimate(scan.points, scan.next_points, mask).flow
+        return Perceived(plain, masked, mask, (time.perf_counter() - started) * 1e3)
+
+
+class KissIcpBaseline:
+    """KISS-ICP (PyPI kiss-icp) on whole scans: the external baseline, never our method."""
+
+    name = KISS_ICP
+
+    def __init__(self, max_range: float = 100.0, voxel: float | None = None, threads: int = 1) -> None:
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.kiss_icp import KissICP
+
+        config = KISSConfig()
+        config.data.max_range = max_range
+        config.data.deskew = False  # the simulated LiDAR takes each scan at one instant
+        config.mapping.voxel_size = voxel or max_range / 100.0  # KISS-ICP's own default rule
+        config.registration.max_num_threads = threads
+        self.odometry = KissICP(config)
+
+    def step(self, points: np.ndarray) -> np.ndarray:
+        """Register one scan; its pose (first scan's frame <- this scan)."""
+        self.odometry.register_frame(np.asarray(points, dtype=np.float64), np.zeros(0))
+        return self.odometry.last_pose.copy()
+
+    def map_points(self) -> np.ndarray:
+        """The local map (odometry frame)."""
+        return np.asarray(self.odometry.local_map.point_cloud())
+
+
+@dataclass
+class MethodRun:
+    """One method's trajectory, time per scan and map-trail samples."""
+
+    name: str
+    poses: list[np.ndarray] = field(default_factory=list)
+    ms: list[float] = field(default_factory=list)
+    trail_voxels: int = 0
+    map_voxels: int = 0
+    last_map: np.ndarray | None = None  # (V, 3) world frame, at the last trail sample
+    last_trails: np.ndarray | None = None  # (V,) bool
+
+    @property
+    def trail_share(self) -> float:
+        """Share of map voxels on agents' paths, pooled over the samples."""
+        return self.trail_voxels / self.map_voxels if self.map_voxels else float("nan")
+
+
+@dataclass
+class SequenceResult:
+    """Every method's run over one sequence, the true poses and what perception cost."""
+
+    truth: list[np.ndarray] = field(default_factory=list)
+    stamps_s: list[float] = field(default_factory=list)
+    runs: dict[str, MethodRun] = field(default_factory=dict)
+    perception_ms: list[float] = field(default_factory=list)
+    scores: dict[str, OdomScores] = field(default_factory=dict)
+
+    def finish(self) -> SequenceResult:
+        """Score every run against the truth (poses relative to the first scan)."""
+        truth = np.stack(self.truth)
+        truth = invert(truth[0]) @ truth
+        stamps = np.asarray(self.stamps_s)
+        self.scores = {name: score(truth, np.stack(run.poses), stamps) for name, run in self.runs.items()}
+        return self
+
+
+def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perception | None, config: OdomConfig,
+                 map_voxel: float, trail_every: int = 10, progress: Callable[[int], None] | None = None) -> SequenceResult:
+    """Step every method through the scans; sample each map's trails every `trail_every` scans."""
+    odometries = {name: make_odometry(name, config) for name in methods if name != KISS_ICP}
+    kiss = KissIcpBaseline() if KISS_ICP in methods else None
+    result = SequenceResult(runs={name: MethodRun(name) for name in methods})
+    paths = SweptPaths()
+    for count, scan in enumerate(scans, 1):
+        result.truth.append(scan.pose)
+        result.stamps_s.append(scan.stamp_ns * 1e-9)
+        paths.add(scan.agents)
+        perceived = perception(scan) if perception is not None and set(methods) & {"flow", "ssf"} else None
+        if perceived is not None:
+            result.perception_ms.append(perceived.ms)
+        for name, odometry in odometries.items():
+            frame = OdomInput(scan.stamp_ns, scan.points)
+            if perceived is not None and name == "flow":
+                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain)
+            elif perceived is not None and name == "ssf":
+                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob)
+            started = time.perf_counter()
+            step = odometry.step(frame)
+            result.runs[name].ms.append((time.perf_counter() - started) * 1e3)
+            result.runs[name].poses.append(step.pose)
+        if kiss is not None:
+            started = time.perf_counter()
+            result.runs[KISS_ICP].poses.append(kiss.step(scan.points))
+            result.runs[KISS_ICP].ms.append((time.perf_counter() - started) * 1e3)
+        if count % trail_every == 0:
+            for name, run in result.runs.items():
+                odom_map = kiss.map_points() if name == KISS_ICP else odometries[name].map.points
+                sample_trails(run, odom_map, scan.pose @ invert(run.poses[-1]), paths, map_voxel)
+        if progress is not None:
+            progress(count)
+    return result.finish()
+
+
+def sample_trails(run: MethodRun, odom_map: np.ndarray, world_from_odom: np.ndarray, paths: SweptPaths,
+                  voxel: float) -> None:
+    """Count a map's voxels and those on agents' paths (the map put into the world at the current true pose)."""
+    points = np.asarray(odom_map, dtype=np.float64)
+    if len(points) == 0:
+        return
+    points = points[voxel_indices(points, voxel)]
+    world = transform_points(world_from_odom, points)
+    trails = paths.on_paths(world)
+    run.trail_voxels += int(trails.sum())
+    run.map_voxels += len(world)
+    run.last_map, run.last_trails = world, trails

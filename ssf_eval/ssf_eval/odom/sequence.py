@@ -1,0 +1,48 @@
+"""Scans of a simulated drive for odometry: whole scans in their sensor frame, true poses, which points move, and
+the agents around (for the map-trail figure), streamed frame by frame."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from sim_bridge.dataset.export import simulate, warmup_frames
+from sim_bridge.ros_messages import agent_obstacles
+from sim_bridge.scenario import Scenario, load_scenario
+from ssf_common.records import Obstacles
+
+NEAR_AGENTS = 90.0  # m: agents farther from the ego cannot reach its local map
+
+
+@dataclass(frozen=True)
+class SimScan:
+    """Scan t with what the evaluation knows about it: points, true pose, moving points, agents nearby."""
+
+    index: int
+    stamp_ns: int
+    points: np.ndarray  # (N, 3) float32, sensor frame
+    next_points: np.ndarray  # (M, 3) float32, scan t+1 (what the flow points towards)
+    dynamic: np.ndarray  # (N,) bool: on an agent that moves between t and t+1
+    instance: np.ndarray  # (N,) int32 agent id, 0 static
+    pose: np.ndarray  # (4, 4) world <- sensor
+    agents: Obstacles  # agents near the ego, world frame
+
+
+def scenario_of(name: str, agents: int | None = None) -> Scenario:
+    """A shipped scenario (or YAML file), optionally with another agent count."""
+    return load_scenario(name, {"agents.count": agents} if agents is not None else None)
+
+
+def sim_scans(scenario: Scenario, seed: int, frames: int, warmup_s: float) -> Iterator[SimScan]:
+    """`frames` consecutive scans after `warmup_s` simulated seconds, each with the next scan and its truth."""
+    skip = warmup_frames(scenario, warmup_s)
+    previous = None
+    for frame in simulate(scenario, seed, frames, skip):
+        if previous is not None:
+            near = np.linalg.norm(previous.agents.position[:, :2] - previous.pose[:2, 3], axis=1) < NEAR_AGENTS
+            yield SimScan(previous.index - skip, previous.stamp_ns, previous.scan.points, frame.scan.points,
+                          frame.flow.dynamic, previous.scan.instance, previous.pose,
+                          agent_obstacles(previous.agents.take(near), previous.stamp_ns))
+        previous = frame

@@ -1,0 +1,59 @@
+"""Map trails: the share of a map's voxels that lie where moving agents have been (their footprints, above the
+ground, up to their height). A static map built from static points only should have almost none."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ssf_common.records import Obstacles
+
+CELL = 0.25  # m, grid of the swept footprints
+GROUND_CLEARANCE = 0.2  # m: map points this close to an agent's base are the ground under it, not the agent
+KEY_OFFSET = 1 << 30
+
+
+def _codes(xy: np.ndarray) -> np.ndarray:
+    keys = np.floor(xy / CELL).astype(np.int64) + KEY_OFFSET
+    return (keys[:, 0] << 31) | keys[:, 1]
+
+
+class SweptPaths:
+    """Every cell any agent's footprint covered so far, with the lowest base and highest top seen there."""
+
+    def __init__(self) -> None:
+        self.codes = np.zeros(0, np.int64)
+        self.base = np.zeros(0)
+        self.top = np.zeros(0)
+
+    def add(self, agents: Obstacles) -> None:
+        """Sweep the agents' footprints (world frame, box centres at half height) into the cells."""
+        if len(agents) == 0:
+            return
+        longest = float(max(agents.sizes[:, 0].max(), agents.sizes[:, 1].max()))
+        steps = np.linspace(-0.5, 0.5, int(np.ceil(longest / (CELL / 2))) + 1)
+        u, v = np.meshgrid(steps, steps, indexing="ij")
+        local = np.stack([u.ravel(), v.ravel()], axis=1)  # (S, 2) in units of the box sides
+        c, s = np.cos(agents.yaws), np.sin(agents.yaws)
+        along = local[None, :, 0] * agents.sizes[:, None, 0]
+        across = local[None, :, 1] * agents.sizes[:, None, 1]
+        xy = np.stack([agents.centres[:, None, 0] + c[:, None] * along - s[:, None] * across,
+                       agents.centres[:, None, 1] + s[:, None] * along + c[:, None] * across], axis=2).reshape(-1, 2)
+        base = np.repeat(agents.centres[:, 2] - agents.sizes[:, 2] / 2, local.shape[0])
+        top = np.repeat(agents.centres[:, 2] + agents.sizes[:, 2] / 2, local.shape[0])
+        codes = np.concatenate([self.codes, _codes(xy)])
+        base, top = np.concatenate([self.base, base]), np.concatenate([self.top, top])
+        self.codes, inverse = np.unique(codes, return_inverse=True)
+        self.base = np.full(len(self.codes), np.inf)
+        self.top = np.full(len(self.codes), -np.inf)
+        np.minimum.at(self.base, inverse, base)
+        np.maximum.at(self.top, inverse, top)
+
+    def on_paths(self, points: np.ndarray) -> np.ndarray:
+        """(N,) bool: world points inside a swept footprint, above the ground under it and below the agent's top."""
+        if len(self.codes) == 0 or len(points) == 0:
+            return np.zeros(len(points), bool)
+        codes = _codes(np.asarray(points)[:, :2])
+        where = np.minimum(np.searchsorted(self.codes, codes), len(self.codes) - 1)
+        inside = self.codes[where] == codes
+        z = np.asarray(points)[:, 2]
+        return inside & (z > self.base[where] + GROUND_CLEARANCE) & (z <= self.top[where] + 0.1)

@@ -1,0 +1,206 @@
+"""Odometry from semantic scene flow: the paper's static points and their flow give the motion between scans, a few
+point-to-plane iterations against a local map of static points refine it, and the motions chain into a pose with a
+covariance. The ablation variants (whole scans only, all points' flow, static points' flow) are one switch."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from enum import Enum
+
+import numpy as np
+from pydantic import Field
+
+from ssf_common.config import Section
+from ssf_common.errors import ConfigError, DataError
+from ssf_common.geometry.sampling import voxel_indices
+from ssf_common.geometry.se3 import invert, transform_points
+from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
+                                             point_to_plane)
+from ssf_odom_node.core.static_map import MapConfig, VoxelMap
+
+GAP_NOISE = np.diag([0.05, 0.05, 0.05, 0.005, 0.005, 0.005]) ** 2  # per predicted-only scan (m, rad)^2
+
+
+class OdomMethod(str, Enum):
+    """What the motion between scans comes from (the paper's ablation rows)."""
+
+    POINTS = "points"  # robust registration of whole scans (constant-velocity start, no flow, no segmentation)
+    FLOW = "flow"  # Kabsch on every point's flow, then the same refinement on every point
+    SSF = "ssf"  # Kabsch on the static points' flow, refinement on static points against a static map
+
+
+class OdomConfig(Section):
+    """Everything the odometry needs; the same dotted names in YAML, ROS parameters and CLI flags."""
+
+    method: OdomMethod = Field(OdomMethod.SSF, description="points | flow | ssf")
+    min_range: float = Field(2.5, ge=0.0, description="closer points (the ego vehicle) are ignored (m)")
+    max_range: float = Field(80.0, gt=0.0, description="farther points are ignored (m)")
+    voxel: float = Field(0.8, gt=0.0, description="voxel (m) the scan is reduced with before registration")
+    static_threshold: float = Field(0.5, ge=0.0, le=1.0, description="points above this dynamic probability are not static")
+    refine_gates: tuple[float, ...] = Field((1.0, 0.5, 0.3, 0.3), description="correspondence gate (m) of each "
+                                            "point-to-plane iteration after a flow-based start")
+    search_gates: tuple[float, ...] = Field((2.0, 1.5, 1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.3, 0.3),
+                                            description="gates of each iteration from a constant-velocity start (points method, gaps)")
+    kernel: float = Field(0.2, gt=0.0, description="Geman-McClure scale of the point-to-plane residuals (m)")
+    normal_neighbours: int = Field(8, ge=3, description="neighbours for the normals of map points")
+    scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
+    map: MapConfig = MapConfig()
+
+
+@dataclass(frozen=True)
+class OdomInput:
+    """One scan (its sensor frame) with the flow towards the next scan and the dynamic probability of each point."""
+
+    stamp_ns: int
+    points: np.ndarray  # (N, 3)
+    flow: np.ndarray | None = None  # (N, 3), None when no flow is known
+    dynamic_prob: np.ndarray | None = None  # (N,), None when no segmentation is known
+
+
+@dataclass(frozen=True)
+class OdomStep:
+    """The pose of one scan in the odometry frame (the first scan's sensor frame) and how it was found."""
+
+    stamp_ns: int
+    pose: np.ndarray  # (4, 4) odom <- sensor
+    covariance: np.ndarray  # (6, 6) x y z roll pitch yaw, in the odometry frame
+    twist: np.ndarray  # (6,) vx vy vz wx wy wz in the sensor frame (per second)
+    next_motion: np.ndarray | None  # (4, 4) this scan -> the next (scan-t coordinates of static points), from the flow
+    inliers: int  # map points matched on the last refinement iteration
+    rmse: float  # point-to-plane RMS residual (m)
+    predicted_by: str  # "flow", "velocity" (constant velocity) or "start"
+    map_voxels: int
+    registered_points: int = 0
+    extras: dict = field(default_factory=dict)
+
+
+class Odometry:
+    """Scan-by-scan odometry from semantic scene flow (or a variant of it), with its local static map."""
+
+    def __init__(self, config: OdomConfig) -> None:
+        self.config = config
+        self.method = OdomMethod(config.method)
+        self.map = VoxelMap(config.map)
+        self.pose = np.eye(4)
+        self.covariance = np.zeros((6, 6))
+        self.velocity = np.zeros(6)  # twist per second, sensor frame
+        self.next_motion: np.ndarray | None = None
+        self.stamp_ns: int | None = None
+
+    def step(self, frame: OdomInput) -> OdomStep:
+        """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
+        points, flow, dynamic = self.reduce(*self.check(frame))
+        # 1. predict: the motion the last scan's static flow gave, else constant velocity
+        predicted, source = self.predict(frame.stamp_ns)
+        # 2. the points this method registers and maps: the static ones (ssf) or all
+        registered = self.registered_points(points, dynamic)
+        # 3. a few point-to-plane iterations against the local static map
+        gates = self.config.refine_gates if source == "flow" else self.config.search_gates
+        alignment = self.refine(registered, predicted, gates)
+        # 4. chain into the pose, its covariance and the velocity
+        self.chain(frame.stamp_ns, alignment)
+        # 5. the registered points join the map at the new pose
+        self.update_map(registered)
+        # 6. the motion to the next scan from the static points and their flow (weighted Kabsch)
+        self.next_motion = self.flow_motion(points, flow, dynamic)
+        return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
+                        None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
+                        alignment.rmse, source, len(self.map), len(registered))
+
+    def reduce(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None):
+        """The points within range, one per voxel, with their flow and dynamic probability."""
+        squared = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
+        keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
+        keep = keep[voxel_indices(points[keep], self.config.voxel)] if len(keep) else keep
+        return (points[keep].astype(np.float64), None if flow is None else flow[keep].astype(np.float64),
+                None if dynamic is None else dynamic[keep].astype(np.float64))
+
+    def update_map(self, registered: np.ndarray) -> None:
+        """Insert the registered points (with normals from their neighbours in the scan) at the current pose."""
+        moved = transform_points(self.pose, registered)
+        new = self.map.new_voxels(moved)
+        normals = estimate_normals(registered, self.config.normal_neighbours, new) @ self.pose[:3, :3].T
+        self.map.insert(moved[new], normals, self.pose[:3, 3])
+
+    def check(self, frame: OdomInput) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """Validate one input (finite points, matching flow and probabilities); DataError names what is wrong."""
+        points = np.asarray(frame.points, dtype=np.float32)
+        if points.ndim != 2 or points.shape[1] < 3 or len(points) == 0:
+            raise DataError(f"odometry: expected an (N, 3) scan, got shape {points.shape}")
+        points = points[:, :3]
+        if not np.isfinite(points).all():
+            raise DataError("odometry: the scan holds NaN/Inf points")
+        flow = None if frame.flow is None else np.asarray(frame.flow, dtype=np.float32)
+        if flow is not None and (flow.shape != points.shape or not np.isfinite(flow).all()):
+            raise DataError(f"odometry: flow of shape {flow.shape} (finite values needed) for {len(points)} points")
+        dynamic = None if frame.dynamic_prob is None else np.asarray(frame.dynamic_prob, dtype=np.float32).reshape(-1)
+        if dynamic is not None and (dynamic.shape != (len(points),) or not np.isfinite(dynamic).all()):
+            raise DataError(f"odometry: {dynamic.size} dynamic probabilities for {len(points)} points")
+        if self.method is OdomMethod.SSF and flow is not None and dynamic is None:
+            raise ConfigError("odometry method 'ssf' needs the segmentation (dynamic probability) with the flow")
+        return points, flow, dynamic
+
+    def predict(self, stamp_ns: int) -> tuple[np.ndarray, str]:
+        """The pose of a new scan: the last pose moved by the flow's motion (covering one scan period) and constant
+        velocity for any time beyond it, or by constant velocity alone."""
+        if self.stamp_ns is None:
+            return np.eye(4), "start"
+        elapsed = self.elapsed(stamp_ns)
+        if self.method is not OdomMethod.POINTS and self.next_motion is not None:
+            beyond = elapsed - self.config.scan_period
+            extra = exp_se3(self.velocity * beyond) if beyond > 0.5 * self.config.scan_period else np.eye(4)
+            return self.pose @ invert(self.next_motion) @ extra, "flow"
+        return self.pose @ exp_se3(self.velocity * elapsed), "velocity"
+
+    def elapsed(self, stamp_ns: int) -> float:
+        """Seconds since the last scan (one scan period when stamps do not advance)."""
+        if self.stamp_ns is None or stamp_ns <= self.stamp_ns:
+            return self.config.scan_period
+        return (stamp_ns - self.stamp_ns) * 1e-9
+
+    def registered_points(self, points: np.ndarray, dynamic: np.ndarray | None) -> np.ndarray:
+        """The points registered and mapped: the static ones for ssf, all for the other methods."""
+        if self.method is OdomMethod.SSF and dynamic is not None:
+            return points[dynamic <= self.config.static_threshold]
+        return points
+
+    def refine(self, points: np.ndarray, predicted: np.ndarray, gates: tuple[float, ...]) -> Alignment:
+        """Point-to-plane Gauss-Newton of the registered points against the map, from the predicted pose."""
+        if len(self.map) == 0:
+            return Alignment(predicted, np.zeros((6, 6)), 0, 0.0, 0)
+        return point_to_plane(points, None, self.map.target(), predicted, gates, self.config.kernel)
+
+    def chain(self, stamp_ns: int, alignment: Alignment) -> None:
+        """Take the refined pose; grow the covariance by this step's; update the velocity."""
+        elapsed = self.elapsed(stamp_ns)
+        if self.stamp_ns is not None:
+            self.velocity = log_se3(invert(self.pose) @ alignment.transform) / elapsed
+        step_covariance = alignment.covariance if alignment.iterations else (GAP_NOISE if self.stamp_ns is not None else 0)
+        self.covariance = self.covariance + step_covariance
+        self.pose = alignment.transform
+        self.stamp_ns = stamp_ns if self.stamp_ns is None or stamp_ns > self.stamp_ns else self.stamp_ns + int(
+            self.config.scan_period * 1e9)
+
+    def flow_motion(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None) -> np.ndarray | None:
+        """Scan t -> t+1 from the flow: Kabsch on the static points weighted by their static probability (ssf), or on
+        every point (flow); None without flow or for the points method."""
+        if flow is None or self.method is OdomMethod.POINTS:
+            return None
+        weights = np.ones(len(points))
+        if self.method is OdomMethod.SSF and dynamic is not None:
+            weights = np.where(dynamic > self.config.static_threshold, 0.0, 1.0 - dynamic)
+        if np.count_nonzero(weights > 0) < 3:
+            return None
+        return flow_transform(points, flow, weights)
+
+
+def make_odometry(method: str | OdomMethod | None = None, config: OdomConfig | None = None) -> Odometry:
+    """The odometry of `method` (default: config.method) built from its config."""
+    config = config or OdomConfig()
+    if method is not None:
+        try:
+            config = config.model_copy(update={"method": OdomMethod(method)})
+        except ValueError:
+            raise ConfigError(f"unknown odometry method '{method}'; choose one of "
+                              f"{', '.join(item.value for item in OdomMethod)}") from None
+    return Odometry(config)

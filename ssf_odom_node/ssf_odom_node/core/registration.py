@@ -1,0 +1,115 @@
+"""Rigid registration pieces of the odometry: surface normals, the flow-based initial transform (weighted Kabsch)
+and robust point-to-plane Gauss-Newton against a target with normals, with the covariance from its Hessian."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.spatial import cKDTree
+from scipy.spatial.transform import Rotation
+
+from ssf_common.geometry.fitting import weighted_kabsch
+from ssf_common.geometry.neighbours import knn
+
+MIN_CONSTRAINTS = 30  # fewer matched points than this: the step is not trusted
+
+
+class PlaneTarget(NamedTuple):
+    """Points with unit normals and their KD-tree: what point-to-plane residuals are measured against."""
+
+    points: np.ndarray  # (M, 3) float64
+    normals: np.ndarray  # (M, 3) float64
+    tree: cKDTree
+
+    @classmethod
+    def build(cls, points: np.ndarray, normals: np.ndarray) -> PlaneTarget:
+        """A target of points and their normals."""
+        points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+        return cls(points, np.asarray(normals, dtype=np.float64).reshape(-1, 3), cKDTree(points))
+
+    def __len__(self) -> int:
+        return len(self.points)
+
+
+class Alignment(NamedTuple):
+    """A refined transform, the covariance of its left perturbation (x y z roll pitch yaw) and its support."""
+
+    transform: np.ndarray  # (4, 4)
+    covariance: np.ndarray  # (6, 6), translation first (the order of ROS pose covariances)
+    inliers: int  # points matched within the gate on the last iteration
+    rmse: float  # weighted RMS point-to-plane residual (m) on the last iteration
+    iterations: int
+
+
+def estimate_normals(points: np.ndarray, neighbours: int = 8, at: np.ndarray | None = None) -> np.ndarray:
+    """Unit normals of a point set (at the points `at` indexes, default all): the least-variance direction of each
+    point's k nearest neighbours in the set."""
+    points = np.asarray(points, dtype=np.float64)
+    query = points if at is None else points[at]
+    if len(points) < 3:
+        return np.tile([0.0, 0.0, 1.0], (len(query), 1))
+    found = knn(points, query, min(neighbours, len(points)))
+    near = points[found.index]  # (Q, k, 3); knn never misses within the set itself
+    centred = near - near.mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    return vectors[:, :, 0]
+
+
+def flow_transform(points: np.ndarray, flow: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
+    """The rigid motion (4x4, scan t -> scan t+1) that best explains the weighted points' flow: weighted Kabsch."""
+    points = np.asarray(points, dtype=np.float64)
+    return weighted_kabsch(points, points + np.asarray(flow, dtype=np.float64), weights)
+
+
+def exp_se3(delta: np.ndarray) -> np.ndarray:
+    """4x4 transform of a small twist (tx ty tz rx ry rz), rotation from the rotation vector."""
+    transform = np.eye(4)
+    transform[:3, :3] = Rotation.from_rotvec(delta[3:]).as_matrix()
+    transform[:3, 3] = delta[:3]
+    return transform
+
+
+def log_se3(transform: np.ndarray) -> np.ndarray:
+    """Twist (tx ty tz rx ry rz) of a transform (translation as is, rotation as a rotation vector)."""
+    return np.concatenate([transform[:3, 3], Rotation.from_matrix(transform[:3, :3]).as_rotvec()])
+
+
+def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: PlaneTarget, initial: np.ndarray,
+                   distances: tuple[float, ...], kernel: float, tolerance: float = 1e-4) -> Alignment:
+    """Gauss-Newton on weighted point-to-plane residuals with a Geman-McClure kernel, one iteration per gate in
+    `distances` (metres, coarse to fine), stopping early once the step is below `tolerance`."""
+    source = np.asarray(source, dtype=np.float64)
+    weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=np.float64)
+    transform = np.asarray(initial, dtype=np.float64).copy()
+    hessian, rmse, inliers, done = np.zeros((6, 6)), np.inf, 0, 0
+    if len(target) < MIN_CONSTRAINTS or len(source) < MIN_CONSTRAINTS:
+        return Alignment(transform, np.eye(6), 0, rmse, 0)
+    for gate in distances:
+        moved = source @ transform[:3, :3].T + transform[:3, 3]
+        distance, index = target.tree.query(moved, distance_upper_bound=gate)
+        found = np.isfinite(distance)
+        inliers = int(found.sum())
+        if inliers < MIN_CONSTRAINTS:
+            break
+        x, n = moved[found], target.normals[index[found]]
+        residual = np.einsum("ij,ij->i", n, x - target.points[index[found]])
+        robust = weights[found] * (kernel ** 2 / (kernel ** 2 + residual ** 2)) ** 2
+        jacobian = np.hstack([n, np.cross(x, n)])  # d residual / d (translation, rotation), perturbation on the left
+        hessian = (jacobian * robust[:, None]).T @ jacobian
+        gradient = (jacobian * robust[:, None]).T @ residual
+        step = -np.linalg.solve(hessian + 1e-6 * np.eye(6), gradient)
+        transform = exp_se3(step) @ transform
+        rmse = float(np.sqrt((robust * residual ** 2).sum() / max(robust.sum(), 1e-12)))
+        done += 1
+        if np.abs(step).max() < tolerance:
+            break
+    return Alignment(transform, plane_covariance(hessian, rmse, inliers), inliers, rmse, done)
+
+
+def plane_covariance(hessian: np.ndarray, rmse: float, inliers: int) -> np.ndarray:
+    """Covariance sigma^2 H^-1 of a point-to-plane fit (sigma: its RMS residual); large where unconstrained."""
+    if inliers < MIN_CONSTRAINTS or not np.isfinite(rmse):
+        return np.eye(6)
+    sigma2 = max(rmse, 1e-3) ** 2
+    return sigma2 * np.linalg.pinv(hessian + 1e-9 * np.eye(6))
