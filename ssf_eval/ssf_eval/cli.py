@@ -9,6 +9,7 @@ def register(groups: CommandGroups) -> None:
     """Add the evaluation and benchmark commands."""
     from ssf_eval.flow import cli as flow
     from ssf_eval.nav import cli as nav
+    from ssf_eval.odom import cli as odom
     from ssf_eval.plan import cli as plan
     from ssf_eval.seg import cli as seg
 
@@ -16,3 +17,4 @@ def register(groups: CommandGroups) -> None:
     seg.register(groups)
     nav.register(groups)
     plan.register(groups)
+    odom.register(groups)

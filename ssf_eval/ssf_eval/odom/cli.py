@@ -1,0 +1,220 @@
+"""`ssf eval odom` and `ssf bench odom`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from ssf_common.cli import CommandGroups
+
+ALL_METHODS = ("points", "flow", "ssf", "kiss-icp")
+DENSITIES = ("sparse_50", "urban_200", "dense_500", "crowd_1000")
+
+
+def register(groups: CommandGroups) -> None:
+    """Add `ssf eval odom` and `ssf bench odom`."""
+    evaluate = groups.eval.add_parser(
+        "odom", help="RPE (RMSE/SSE/STD), ATE, drift and map trails per method and KISS-ICP, per traffic density",
+        description="Every odometry method and KISS-ICP on the very same simulated whole scans. Flow comes from the "
+        "project's `rigid` estimator on whole scans; the static mask from the segmentation's fusion loop (--masks "
+        "seg), or ground-truth stand-ins (gt, noisy) for ablations. RPE/ATE computed with evo; drift over the route "
+        "segments of the KITTI protocol the drive is long enough for, and end-point error in %% of the distance.")
+    evaluate.add_argument("--scenario", "--scenarios", dest="scenarios", nargs="+", default=list(DENSITIES), metavar="NAME",
+                          help=f"scenarios (default: {' '.join(DENSITIES)})")
+    evaluate.add_argument("--agents", type=int, help="override every scenario's agent count")
+    evaluate.add_argument("--seed", type=int, default=0, help="simulator seed (default 0; tuning used 10-19)")
+    evaluate.add_argument("--frames", type=int, default=300, help="scans per scenario (default 300: 30 s of driving)")
+    evaluate.add_argument("--warmup", type=float, default=2.0, metavar="S", help="simulated seconds before the first scan")
+    evaluate.add_argument("--methods", "--method", nargs="+", default=list(ALL_METHODS), metavar="M",
+                          help=f"default: {' '.join(ALL_METHODS)}")
+    evaluate.add_argument("--masks", choices=("seg", "gt", "noisy"), default="seg",
+                          help="static mask: the segmentation (fusion loop), or ground truth (gt, noisy) stand-ins")
+    evaluate.add_argument("--trail-every", type=int, default=10, help="sample the maps' trails every N scans")
+    evaluate.add_argument("--json", type=Path, help="write the results here (and the effective config beside them)")
+    evaluate.add_argument("--plot", type=Path, help="PNG: every method's trajectory against the truth")
+    evaluate.add_argument("--map-plot", type=Path, help="PNG: the local maps of the last scenario, trails in red")
+    add_odom_options(evaluate)
+    evaluate.set_defaults(func=run_eval)
+
+    bench = groups.bench.add_parser(
+        "odom", help="ms per scan (median, p95) of each odometry method on top of flow and segmentation, peak RSS",
+        description="Flow and masks are computed first (rigid flow, noisy ground-truth masks as the fusion loop hands "
+        "them); then each method and KISS-ICP (the baseline measured in the same run) are timed on the same scans.")
+    bench.add_argument("--scenario", default="urban_200")
+    bench.add_argument("--seed", type=int, default=0)
+    bench.add_argument("--frames", type=int, default=40, help="timed scans per method (default 40)")
+    bench.add_argument("--methods", "--method", nargs="+", default=list(ALL_METHODS), metavar="M")
+    bench.add_argument("--json", type=Path)
+    add_odom_options(bench)
+    bench.set_defaults(func=run_bench)
+
+
+def add_odom_options(parser: argparse.ArgumentParser) -> None:
+    """--odom-config and -p overrides of the odometry config."""
+    parser.add_argument("--odom-config", type=Path, help="odometry config YAML (method, map.*, refine_gates, ...)")
+    parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="override one odometry config value, e.g. -p map.voxel:=0.5")
+
+
+def odom_config(args: argparse.Namespace):
+    """The odometry config from --odom-config and -p overrides."""
+    from ssf_common.config import build, read_yaml
+    from ssf_flow_node.cli import parse_overrides
+    from ssf_odom_node.core.odometry import OdomConfig
+
+    file = read_yaml(args.odom_config) if args.odom_config else {}
+    return build(OdomConfig, file, parse_overrides(args.param, "-p"), source=str(args.odom_config or "-p"))
+
+
+def check_methods(methods: list[str]) -> None:
+    """Every name must be a method or kiss-icp."""
+    from ssf_common.errors import ConfigError
+
+    unknown = [name for name in methods if name not in ALL_METHODS]
+    if unknown:
+        raise ConfigError(f"unknown odometry method {unknown[0]!r}; choose from {', '.join(ALL_METHODS)}")
+
+
+def perception_for(masks: str, seed: int):
+    """The project's flow estimator on whole scans, and the fusion loop when the masks come from the segmentation."""
+    from ssf_common.config import build
+    from ssf_eval.odom.evaluate import MaskSource, Perception
+    from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
+    from ssf_seg_node.core.fusion import FusionConfig, FusionLoop
+    from ssf_seg_node.core.segmenter import make_segmenter
+
+    estimator = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN))
+    fusion = FusionLoop(estimator, make_segmenter("geometric"), FusionConfig()) if masks == "seg" else None
+    return Perception(MaskSource(masks), estimator, fusion, seed)
+
+
+def format_table(results: dict) -> str:
+    """The paper's layout: RPE translation and rotation (RMSE / SSE / STD), then ATE, drift, trails and time."""
+    header = (f"{'scenario':<12} {'method':<9} {'RPE t RMSE':>10} {'SSE':>8} {'STD':>7} {'RPE r RMSE':>10} {'SSE':>8} "
+              f"{'STD':>7} {'ATE':>7} {'drift %':>7} {'deg/100m':>8} {'end %':>6} {'trails %':>8} {'ms':>6}")
+    lines = [header, "-" * len(header)]
+    import numpy as np
+
+    for title, result in results.items():
+        for name, s in result.scores.items():
+            run = result.runs[name]
+            lines.append(
+                f"{title:<12} {name:<9} {s.rpe_translation.rmse:10.4f} {s.rpe_translation.sse:8.4f} "
+                f"{s.rpe_translation.std:7.4f} {s.rpe_rotation.rmse:10.4f} {s.rpe_rotation.sse:8.4f} "
+                f"{s.rpe_rotation.std:7.4f} {s.ate.rmse:7.3f} {s.drift.translation_pct:7.2f} "
+                f"{s.drift.rotation_deg_per_100m:8.3f} {s.endpoint_pct:6.2f} {100 * run.trail_share:8.2f} "
+                f"{float(np.median(run.ms)):6.1f}")
+    return "\n".join(lines)
+
+
+def run_eval(args: argparse.Namespace) -> int:
+    """ssf eval odom."""
+    import numpy as np
+
+    from ssf_common.errors import ConfigError
+    from ssf_common.paths import check_writable
+    from ssf_eval.odom.evaluate import run_sequence
+    from ssf_eval.odom.sequence import scenario_of, sim_scans
+    from ssf_eval.results import write_result
+
+    check_methods(args.methods)
+    if args.frames < 2:
+        raise ConfigError(f"--frames must be at least 2, got {args.frames}")
+    for path, what in ((args.json, "result file"), (args.plot, "picture"), (args.map_plot, "picture")):
+        if path is not None:
+            check_writable(path, what)
+    config = odom_config(args)
+    scenarios = [scenario_of(name, args.agents) for name in args.scenarios]
+    perception = perception_for(args.masks, args.seed) if {"flow", "ssf"} & set(args.methods) else None
+    results = {}
+    for scenario in scenarios:
+        title = f"{scenario.name}" if args.agents is None else f"{scenario.name}@{args.agents}"
+        print(f"{title}: {args.frames} scans, seed {args.seed}, methods {' '.join(args.methods)}, masks {args.masks}",
+              file=sys.stderr, flush=True)
+        progress = lambda done: done % 25 == 0 and print(f"  {title}: scan {done}/{args.frames}", file=sys.stderr, flush=True)
+        scans = sim_scans(scenario, args.seed, args.frames, args.warmup)
+        results[title] = run_sequence(scans, args.methods, perception, config, config.map.voxel, args.trail_every,
+                                      progress)
+    print(f"odometry over {args.frames} scans after {args.warmup:g} s, seed {args.seed}, masks {args.masks} "
+          "(RPE between consecutive scans: translation m, rotation deg; ATE m; trails: share of map voxels)")
+    print(format_table(results))
+    if args.json:
+        payload = {"seed": args.seed, "frames": args.frames, "warmup_s": args.warmup, "masks": args.masks,
+                   "scenarios": {title: {
+                       "distance_m": next(iter(result.scores.values())).distance,
+                       "perception_ms_median": float(np.median(result.perception_ms)) if result.perception_ms else None,
+                       "methods": {name: {"rpe_translation": s.rpe_translation._asdict(),
+                                          "rpe_rotation_deg": s.rpe_rotation._asdict(), "ate": s.ate._asdict(),
+                                          "drift": s.drift._asdict(), "endpoint_pct": s.endpoint_pct,
+                                          "trail_share": result.runs[name].trail_share,
+                                          "map_voxels_sampled": result.runs[name].map_voxels,
+                                          "ms_median": float(np.median(result.runs[name].ms)),
+                                          "ms_p95": float(np.percentile(result.runs[name].ms, 95))}
+                                   for name, s in result.scores.items()}}
+                       for title, result in results.items()}}
+        write_result(args.json, payload, {"odom": config, "methods": args.methods, "masks": args.masks,
+                                          "scenarios": [s.model_dump(mode="json") for s in scenarios]})
+    if args.plot:
+        from ssf_eval.odom.plot import plot_trajectories
+
+        print(plot_trajectories(results, args.plot), file=sys.stderr)
+    if args.map_plot:
+        from ssf_eval.odom.plot import plot_maps
+
+        title, result = list(results.items())[-1]
+        print(plot_maps(result, title, args.map_plot), file=sys.stderr)
+    return 0
+
+
+def run_bench(args: argparse.Namespace) -> int:
+    """ssf bench odom: ms per scan of the odometry alone (flow and masks computed beforehand), KISS-ICP beside."""
+    import resource
+    import time
+
+    import numpy as np
+
+    from ssf_common.errors import ConfigError
+    from ssf_eval.odom.evaluate import KISS_ICP, KissIcpBaseline
+    from ssf_eval.odom.sequence import scenario_of, sim_scans
+    from ssf_eval.results import write_result
+    from ssf_odom_node.core.odometry import OdomInput, make_odometry
+
+    check_methods(args.methods)
+    if args.frames < 2:
+        raise ConfigError(f"--frames must be at least 2, got {args.frames}")
+    config = odom_config(args)
+    perception = perception_for("noisy", args.seed)
+    scans, inputs = [], []
+    print(f"computing flow and masks for {args.frames} scans of {args.scenario} ...", file=sys.stderr, flush=True)
+    for scan in sim_scans(scenario_of(args.scenario), args.seed, args.frames, 2.0):
+        perceived = perception(scan)
+        scans.append(scan.points)
+        inputs.append({"points": OdomInput(scan.stamp_ns, scan.points),
+                       "flow": OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain),
+                       "ssf": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob)})
+    figures = {}
+    for name in args.methods:
+        spent = []
+        if name == KISS_ICP:
+            kiss = KissIcpBaseline()
+            for points in scans:
+                started = time.perf_counter()
+                kiss.step(points)
+                spent.append((time.perf_counter() - started) * 1e3)
+        else:
+            odometry = make_odometry(name, config)
+            for frame in inputs:
+                started = time.perf_counter()
+                odometry.step(frame[name])
+                spent.append((time.perf_counter() - started) * 1e3)
+        spent = spent[1:]  # the first scan only starts the map
+        figures[name] = {"ms_median": float(np.median(spent)), "ms_p95": float(np.percentile(spent, 95)),
+                         "frames": len(spent), "points": int(np.median([len(points) for points in scans]))}
+        print(f"{name:<9} median {figures[name]['ms_median']:6.1f} ms  p95 {figures[name]['ms_p95']:6.1f} ms", flush=True)
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    print(f"peak_rss_mb {peak:.0f}")
+    if args.json:
+        write_result(args.json, {"methods": figures, "peak_rss_mb": peak, "scenario": args.scenario},
+                     {"odom": config, "methods": args.methods, "scenario": args.scenario, "seed": args.seed})
+    return 0
