@@ -1,20 +1,174 @@
-"""ssf_odom_node: odometry from the static points and their flow (issue: ssf_odom_node).
-
-Until that stage's algorithm lands, the node joins the graph on its input topic and reports what arrives.
-"""
+"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) in; /odom, the
+odom -> base_link transform on /tf, /ssf/path and the static map on /ssf/map out."""
 
 from __future__ import annotations
 
-from ssf_common import topics
-from ssf_common.graph_node import ListeningNode
-from ssf_common.middleware import QOS_DEFAULT, run
+import collections
+import time
+from typing import Any
+
+import numpy as np
+from pydantic import Field
+
+from ssf_common import messages, pose_msgs, topics
+from ssf_common.config import Section
+from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg, scene_flow_from_cloud,
+                                    semantic_flow_from_cloud)
+from ssf_common.errors import ConfigError, MessageError, SsfError
+from ssf_common.geometry.se3 import invert
+from ssf_common.middleware import QOS_DEFAULT, Node, run
+from ssf_common.pointcloud import xyz_to_cloud
+from ssf_common.records import OdometryEstimate
+from ssf_common.worker import LatestWorker
+from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_odometry
+
+PENDING_FLOWS = 8  # flows kept while their mask is on the way (input: flow_mask)
 
 
-class OdomNode(ListeningNode):
-    """Graph shell of ssf_odom_node."""
+class OdomNodeConfig(Section):
+    """How the node is wired: its input, frames, the sensor mount and publishing rates."""
+
+    input: str = Field("semantic_flow", description="semantic_flow (/ssf/semantic_flow) | flow_mask (/ssf/flow + /ssf/mask)")
+    odom_frame: str = "odom"
+    base_frame: str = "base_link"
+    mount: tuple[float, float, float, float, float, float] = Field(
+        (0.0, 0.0, 1.8, 0.0, 0.0, 0.0), description="base_link -> sensor: x y z roll pitch yaw (m, rad), until /tf says")
+    mount_from_tf: bool = Field(True, description="take base_link -> sensor from /tf when it is published there")
+    map_period_s: float = Field(1.0, gt=0.0, description="how often /ssf/map is published (s)")
+    path_length: int = Field(5000, ge=1, description="poses kept on /ssf/path")
+    report_period_s: float = Field(5.0, gt=0.0)
+
+
+def mount_matrix(values: tuple[float, ...]) -> np.ndarray:
+    """4x4 base_link <- sensor of x y z roll pitch yaw."""
+    from scipy.spatial.transform import Rotation
+
+    matrix = np.eye(4)
+    matrix[:3, :3] = Rotation.from_euler("xyz", values[3:]).as_matrix()
+    matrix[:3, 3] = values[:3]
+    return matrix
+
+
+def to_base(step: OdomStep, mount: np.ndarray, odom_frame: str, base_frame: str) -> OdometryEstimate:
+    """An odometry step of the sensor (first scan's sensor frame) as base_link in the odom frame (base_link at the
+    first scan): pose M P M^-1, covariance and twist rotated into base_link axes."""
+    rotation = np.kron(np.eye(2), mount[:3, :3])
+    angular = mount[:3, :3] @ step.twist[3:]
+    linear = mount[:3, :3] @ step.twist[:3] + np.cross(mount[:3, 3], angular)
+    return OdometryEstimate(step.stamp_ns, mount @ step.pose @ invert(mount), rotation @ step.covariance @ rotation.T,
+                            np.concatenate([linear, angular]), np.zeros((6, 6)), odom_frame, base_frame)
+
+
+class OdomNode(Node):
+    """Converts semantic scene flow messages into odometry steps and publishes the pose, path and static map."""
 
     def __init__(self, argv: list[str] | None = None) -> None:
-        super().__init__("ssf_odom_node", {topics.SEMANTIC_FLOW: ("sensor_msgs/msg/PointCloud2", QOS_DEFAULT)}, argv=argv)
+        super().__init__("ssf_odom_node", argv=argv)
+        self.config = self.declare_config(OdomConfig)
+        self.wiring = self.declare_config(OdomNodeConfig, prefix="node.")
+        if self.wiring.input not in ("semantic_flow", "flow_mask"):
+            raise ConfigError(f"parameter node.input: '{self.wiring.input}' is not semantic_flow or flow_mask")
+        self.odometry = make_odometry(config=self.config)
+        self.mount = mount_matrix(self.wiring.mount)
+        self.sensor_frame = ""
+        self.path: collections.deque[Any] = collections.deque(maxlen=self.wiring.path_length)
+        self.flows: collections.OrderedDict[int, Any] = collections.OrderedDict()
+        self.odom_pub = self.create_publisher("nav_msgs/msg/Odometry", topics.ODOM, QOS_DEFAULT)
+        self.tf_pub = self.create_publisher("tf2_msgs/msg/TFMessage", topics.TF, QOS_DEFAULT)
+        self.path_pub = self.create_publisher("nav_msgs/msg/Path", topics.PATH, QOS_DEFAULT)
+        self.map_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MAP, QOS_DEFAULT)
+        self.worker = LatestWorker(self._step, ("scan",), self.get_logger(), "odom")
+        if self.wiring.input == "semantic_flow":
+            self.create_subscription("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, self.on_semantic_flow, QOS_DEFAULT)
+        else:
+            self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
+            self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK, self.on_mask, QOS_DEFAULT)
+        if self.wiring.mount_from_tf:
+            self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
+        self.create_timer(self.wiring.map_period_s, self._publish_map)
+        self.create_timer(self.wiring.report_period_s, self._report)
+        self._compute_ms: list[float] = []
+        self._last_stamp: int | None = None
+        self.get_logger().info(f"method '{self.config.method.value}' from {self.wiring.input}")
+
+    def on_semantic_flow(self, msg: Any) -> None:
+        """Queue one scan's converged flow and segmentation."""
+        try:
+            result = semantic_flow_from_cloud(msg)
+        except (MessageError, SsfError) as err:
+            self.get_logger().warning(f"dropped a message on {topics.SEMANTIC_FLOW}: {err}; the pose keeps its "
+                                      "constant-velocity prediction")
+            return
+        self.sensor_frame = result.frame_id
+        self.worker.submit("scan", OdomInput(result.stamp_ns, result.points, result.flow, result.segmentation.dynamic_prob))
+
+    def on_flow(self, msg: Any) -> None:
+        """Keep a flow until the mask of its scan arrives."""
+        try:
+            flow = scene_flow_from_cloud(msg)
+        except (MessageError, SsfError) as err:
+            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+            return
+        self.flows[flow.stamp_ns] = flow
+        while len(self.flows) > PENDING_FLOWS:
+            self.flows.popitem(last=False)
+
+    def on_mask(self, msg: Any) -> None:
+        """Pair a mask with the flow of its scan and queue them."""
+        stamp = messages.stamp_ns(msg.header.stamp)
+        flow = self.flows.get(stamp)
+        if flow is None:
+            self.get_logger().warning(f"mask for stamp {stamp} matches no recent flow; dropped")
+            return
+        try:
+            mask = mask_from_cloud(msg, len(flow.points))
+        except (MessageError, SsfError) as err:
+            self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
+            return
+        self.sensor_frame = flow.frame_id
+        self.worker.submit("scan", OdomInput(flow.stamp_ns, flow.points, flow.flow, mask.dynamic_prob))
+
+    def on_tf(self, msg: Any) -> None:
+        """Take the base_link -> sensor mount when /tf carries it."""
+        for item in msg.transforms:
+            if item.header.frame_id == self.wiring.base_frame and item.child_frame_id == self.sensor_frame:
+                self.mount = pose_msgs.matrix_from_transform(item.transform)
+
+    def _step(self, _kind: str, frame: OdomInput) -> None:
+        if self._last_stamp is not None and frame.stamp_ns <= self._last_stamp:
+            self.get_logger().warning(f"stamp {frame.stamp_ns} is not after the last scan's; dropped")
+            return
+        started = time.perf_counter()
+        step = self.odometry.step(frame)
+        self._compute_ms.append((time.perf_counter() - started) * 1e3)
+        self._last_stamp = frame.stamp_ns
+        estimate = to_base(step, self.mount, self.wiring.odom_frame, self.wiring.base_frame)
+        self.odom_pub.publish(odometry_to_msg(estimate))
+        self.tf_pub.publish(odometry_transform_msg(estimate))
+        self.path.append(messages.msg_type("geometry_msgs/msg/PoseStamped")(
+            header=messages.header(step.stamp_ns, self.wiring.odom_frame), pose=pose_msgs.pose_msg(estimate.pose)))
+        self.path_pub.publish(messages.msg_type("nav_msgs/msg/Path")(
+            header=messages.header(step.stamp_ns, self.wiring.odom_frame), poses=list(self.path)))
+
+    def _publish_map(self) -> None:
+        """The static map (odom frame) at a low rate."""
+        points = np.asarray(self.odometry.map.points, dtype=np.float64)
+        if self._last_stamp is None or len(points) == 0:
+            return
+        base = points @ self.mount[:3, :3].T + self.mount[:3, 3]
+        self.map_pub.publish(xyz_to_cloud(base.astype(np.float32), messages.header(self._last_stamp, self.wiring.odom_frame)))
+
+    def _report(self) -> None:
+        if not self._compute_ms:
+            return
+        self.get_logger().info(
+            f"odometry: {self.worker.processed['scan']} scans, median {float(np.median(self._compute_ms)):.1f} ms, "
+            f"map {len(self.odometry.map)} voxels; dropped {self.worker.dropped['scan']} scans that arrived while busy")
+        self._compute_ms.clear()
+
+    def on_shutdown(self) -> None:
+        """Stop the worker."""
+        self.worker.stop()
 
 
 def main(argv: list[str] | None = None) -> int:

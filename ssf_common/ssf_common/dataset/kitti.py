@@ -36,7 +36,50 @@ def read_poses(path: str | Path) -> np.ndarray:
 def write_poses(path: str | Path, poses: np.ndarray) -> None:
     """Write poses (N, 4, 4) as KITTI 3x4 rows."""
     lines = [" ".join(f"{value:.9e}" for value in pose[:3, :].reshape(-1)) for pose in poses]
-    Path(path).write_text("\n".join(lines) + "\n")
+    try:
+        Path(path).write_text("\n".join(lines) + "\n")
+    except OSError as err:
+        raise DataError(f"{path}: cannot write the poses ({err.strerror})") from None
+
+
+def write_tum(path: str | Path, stamps_s: np.ndarray, poses: np.ndarray) -> None:
+    """Write poses (N, 4, 4) in the TUM trajectory format: one row `timestamp tx ty tz qx qy qz qw` per pose."""
+    from scipy.spatial.transform import Rotation
+
+    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 4, 4)
+    quaternions = Rotation.from_matrix(poses[:, :3, :3]).as_quat() if len(poses) else np.zeros((0, 4))
+    lines = [f"{stamp:.9f} " + " ".join(f"{value:.9f}" for value in (*pose[:3, 3], *quaternion))
+             for stamp, pose, quaternion in zip(np.asarray(stamps_s, dtype=np.float64), poses, quaternions)]
+    try:
+        Path(path).write_text("\n".join(lines) + "\n")
+    except OSError as err:
+        raise DataError(f"{path}: cannot write the trajectory ({err.strerror})") from None
+
+
+def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Timestamps (N,) and poses (N, 4, 4) of a TUM trajectory file (`#` comments allowed)."""
+    from scipy.spatial.transform import Rotation
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such trajectory file")
+    rows = []
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        try:
+            values = np.array([float(value) for value in line.split()])
+        except ValueError:
+            raise DataError(f"{path}:{number}: not a row of numbers") from None
+        if values.size != 8 or not np.isfinite(values).all():
+            raise DataError(f"{path}:{number}: expected 8 finite numbers (timestamp tx ty tz qx qy qz qw)")
+        rows.append(values)
+    table = np.array(rows).reshape(-1, 8)
+    poses = np.tile(np.eye(4), (len(table), 1, 1))
+    if len(table):
+        poses[:, :3, :3] = Rotation.from_quat(table[:, 4:]).as_matrix()
+        poses[:, :3, 3] = table[:, 1:4]
+    return table[:, 0], poses
 
 
 def read_bin(path: str | Path) -> np.ndarray:

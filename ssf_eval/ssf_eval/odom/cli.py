@@ -13,7 +13,28 @@ DENSITIES = ("sparse_50", "urban_200", "dense_500", "crowd_1000")
 
 
 def register(groups: CommandGroups) -> None:
-    """Add `ssf eval odom` and `ssf bench odom`."""
+    """Add `ssf odom run`, `ssf eval odom` and `ssf bench odom`."""
+    odom = groups.top.add_parser("odom", help="odometry from semantic scene flow over a folder of scans or a bag")
+    odom_commands = odom.add_subparsers(dest="odom_command", metavar="WHAT", required=True)
+    run = odom_commands.add_parser(
+        "run", help="odometry over a folder of scans (.bin, .pcd, .ply, .npy) or a rosbag with a PointCloud2 topic",
+        description="Poses of every scan in the first scan's frame: DIR/poses_kitti.txt (KITTI odometry rows), "
+        "DIR/poses_tum.txt (timestamp tx ty tz qx qy qz qw), DIR/config.yaml (the effective config) and "
+        "DIR/trajectory.png. Folder scans are taken in name order, --period apart; bag scans carry their stamps. "
+        "Method ssf (default) runs the flow <-> segmentation loop on each pair of whole scans; flow uses the flow "
+        "alone; points registers whole scans only. -p names: odom.* (odometry) and perception.* (flow.*, seg.*, "
+        "fusion.*).")
+    run.add_argument("source", type=Path, metavar="SOURCE", help="folder of scans or a rosbag (folder or .mcap/.db3)")
+    run.add_argument("--out", type=Path, required=True, metavar="DIR", help="output folder")
+    run.add_argument("--method", choices=("points", "flow", "ssf"), default=None, help="default: ssf (or the config's)")
+    run.add_argument("--topic", help="PointCloud2 topic of the bag (default: its only one)")
+    run.add_argument("--period", type=float, default=0.1, metavar="S", help="time between folder scans (default 0.1 s)")
+    run.add_argument("--config", type=Path, help="YAML with odom.* and perception.* sections")
+    run.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
+                     help="override one config value, e.g. -p odom.map.voxel:=0.5")
+    run.add_argument("--device", default="cpu", help="torch device for network flow estimators")
+    run.set_defaults(func=run_odom)
+
     evaluate = groups.eval.add_parser(
         "odom", help="RPE (RMSE/SSE/STD), ATE, drift and map trails per method and KISS-ICP, per traffic density",
         description="Every odometry method and KISS-ICP on the very same simulated whole scans. Flow comes from the "
@@ -106,6 +127,36 @@ def format_table(results: dict) -> str:
                 f"{s.drift.rotation_deg_per_100m:8.3f} {s.endpoint_pct:6.2f} {100 * run.trail_share:8.2f} "
                 f"{float(np.median(run.ms)):6.1f}")
     return "\n".join(lines)
+
+
+def run_odom(args: argparse.Namespace) -> int:
+    """ssf odom run."""
+    from ssf_common.config import build, read_yaml
+    from ssf_common.errors import ConfigError
+    from ssf_eval.odom.run import OdomRunConfig, Perceiver, open_source, progress_bar, run_odometry, write_outputs
+    from ssf_flow_node.cli import parse_overrides
+    from ssf_flow_node.core.estimator import WHOLE_SCAN
+    from ssf_odom_node.core.odometry import make_odometry
+
+    if not args.period > 0:
+        raise ConfigError(f"--period must be positive, got {args.period}")
+    if args.out.exists() and not args.out.is_dir():
+        raise ConfigError(f"{args.out}: exists and is not a folder")
+    layers = [{"perception": {"flow": WHOLE_SCAN, "dt": args.period}, "odom": {"scan_period": args.period}}]
+    layers += [read_yaml(args.config)] if args.config else []
+    layers += [parse_overrides(args.param, "-p")]
+    layers += [{"odom": {"method": args.method}}] if args.method else []
+    config = build(OdomRunConfig, *layers, source=str(args.config or "-p"))
+    source = open_source(args.source, args.topic, args.period)
+    odometry = make_odometry(config=config.odom)
+    perceive = Perceiver(config.odom.method, config.perception, args.device)
+    print(f"{config.odom.method.value} odometry over {source.description}", file=sys.stderr, flush=True)
+    steps = run_odometry(source, odometry, perceive, progress_bar(max(source.count - 1, 1)))
+    written = write_outputs(args.out, steps, config, source)
+    last = steps[-1].pose[:3, 3]
+    print(f"{len(steps)} poses, last at ({last[0]:.2f}, {last[1]:.2f}, {last[2]:.2f}) m -> "
+          + ", ".join(str(path) for path in written), file=sys.stderr)
+    return 0
 
 
 def run_eval(args: argparse.Namespace) -> int:

@@ -36,6 +36,8 @@ class OdomConfig(Section):
     min_range: float = Field(2.5, ge=0.0, description="closer points (the ego vehicle) are ignored (m)")
     max_range: float = Field(80.0, gt=0.0, description="farther points are ignored (m)")
     voxel: float = Field(0.8, gt=0.0, description="voxel (m) the scan is reduced with before registration")
+    min_points: int = Field(1500, ge=0, description="when the first scan keeps fewer points, scan and map voxels shrink "
+                            "(x0.6, at most 3 times) for the whole run: small scenes, sparse sensors")
     static_threshold: float = Field(0.5, ge=0.0, le=1.0, description="points above this dynamic probability are not static")
     refine_gates: tuple[float, ...] = Field((1.0, 0.5, 0.3, 0.3), description="correspondence gate (m) of each "
                                             "point-to-plane iteration after a flow-based start")
@@ -81,6 +83,7 @@ class Odometry:
         self.config = config
         self.method = OdomMethod(config.method)
         self.map = VoxelMap(config.map)
+        self.voxel: float | None = None  # the scan voxel, chosen on the first scan
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
         self.velocity = np.zeros(6)  # twist per second, sensor frame
@@ -111,9 +114,22 @@ class Odometry:
         """The points within range, one per voxel, with their flow and dynamic probability."""
         squared = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
         keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
-        keep = keep[voxel_indices(points[keep], self.config.voxel)] if len(keep) else keep
+        if self.voxel is None:
+            self.voxel = self.choose_voxel(points[keep])
+        keep = keep[voxel_indices(points[keep], self.voxel)] if len(keep) else keep
         return (points[keep].astype(np.float64), None if flow is None else flow[keep].astype(np.float64),
                 None if dynamic is None else dynamic[keep].astype(np.float64))
+
+    def choose_voxel(self, points: np.ndarray) -> float:
+        """The configured voxel, shrunk while the first scan would keep fewer than min_points; the map follows."""
+        scale = 1.0
+        for _ in range(3):
+            if len(voxel_indices(points, self.config.voxel * scale)) >= self.config.min_points or len(points) == 0:
+                break
+            scale *= 0.6
+        if scale != 1.0:
+            self.map = VoxelMap(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale}))
+        return self.config.voxel * scale
 
     def update_map(self, registered: np.ndarray) -> None:
         """Insert the registered points (with normals from their neighbours in the scan) at the current pose."""

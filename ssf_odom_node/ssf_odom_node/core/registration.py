@@ -77,8 +77,9 @@ def log_se3(transform: np.ndarray) -> np.ndarray:
 
 def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: PlaneTarget, initial: np.ndarray,
                    distances: tuple[float, ...], kernel: float, tolerance: float = 1e-4) -> Alignment:
-    """Gauss-Newton on weighted point-to-plane residuals with a Geman-McClure kernel, one iteration per gate in
-    `distances` (metres, coarse to fine), stopping early once the step is below `tolerance`."""
+    """Gauss-Newton on weighted point-to-plane residuals with a Geman-McClure kernel (scale: `kernel`, or a third of
+    the gate when wider), one iteration per gate in `distances` (m, coarse to fine), stopping early once the step is
+    below `tolerance`."""
     source = np.asarray(source, dtype=np.float64)
     weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=np.float64)
     transform = np.asarray(initial, dtype=np.float64).copy()
@@ -94,7 +95,8 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
             break
         x, n = moved[found], target.normals[index[found]]
         residual = np.einsum("ij,ij->i", n, x - target.points[index[found]])
-        robust = weights[found] * (kernel ** 2 / (kernel ** 2 + residual ** 2)) ** 2
+        scale = max(kernel, gate / 3.0)  # the kernel widens with the gate: coarse steps must see far correspondences
+        robust = weights[found] * (scale ** 2 / (scale ** 2 + residual ** 2)) ** 2
         jacobian = np.hstack([n, np.cross(x, n)])  # d residual / d (translation, rotation), perturbation on the left
         hessian = (jacobian * robust[:, None]).T @ jacobian
         gradient = (jacobian * robust[:, None]).T @ residual

@@ -1,0 +1,182 @@
+"""Odometry core: weighted Kabsch with outliers, the three variants on a static street with a moving convoy, the
+static map's memory cap, the covariance, gaps, and known motions of real VLP-16/VLP-32 scans."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssf_common.errors import ConfigError, DataError
+from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, transform_points
+from ssf_common.scan_io import read_scan
+from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, make_odometry
+from ssf_odom_node.core.registration import estimate_normals, flow_transform
+from ssf_odom_node.core.static_map import MapConfig, VoxelMap
+
+CONVOY_STEP = 1.0  # m per scan, along x (world)
+EGO = make_pose(0.5, 0.05, 0.0, 0.01)  # the ego's motion between the two scans
+
+
+def faces(rng: np.random.Generator, centre, size, count: int) -> np.ndarray:
+    """Points on the four sides and the top of an upright box (centre of its base)."""
+    length, width, height = size
+    face = rng.integers(0, 5, count)
+    u, v = rng.uniform(-0.5, 0.5, count), rng.uniform(0.0, 1.0, count)
+    local = np.c_[u * length, (v - 0.5) * width, np.full(count, height)]  # top
+    sides = face < 4
+    local[sides, 2] = v[sides] * height
+    local[face == 0, 0], local[face == 1, 0] = length / 2, -length / 2
+    local[face == 0, 1], local[face == 1, 1] = u[face == 0] * width, u[face == 1] * width
+    local[face == 2, 1], local[face == 3, 1] = width / 2, -width / 2
+    return local + np.asarray(centre)
+
+
+def street(seed: int, moved: bool) -> tuple[np.ndarray, np.ndarray]:
+    """World points of a street (ground, a long wall, a cross wall) and a convoy of trucks; moving flags."""
+    rng = np.random.default_rng(seed)
+    ground = np.c_[rng.uniform(-40, 40, (3000, 2)), rng.normal(-1.8, 0.01, 3000)]
+    wall = np.c_[rng.uniform(-40, 40, 1500), np.full(1500, 12.0), rng.uniform(-1.8, 3.0, 1500)]
+    cross = np.c_[np.full(500, 35.0), rng.uniform(-10, 10, 500), rng.uniform(-1.8, 3.0, 500)]
+    shift = CONVOY_STEP if moved else 0.0
+    trucks = [faces(rng, (x + shift, y, -1.8), (8.0, 2.5, 3.5), 600)
+              for x, y in ((-20, -6), (-8, -6), (6, -6), (18, -6), (-14, 3), (0, 3), (12, 3), (24, 3))]
+    static = np.vstack([ground, wall, cross])
+    points = np.vstack([static, *trucks])
+    return points, np.r_[np.zeros(len(static), bool), np.ones(len(points) - len(static), bool)]
+
+
+def convoy_scans() -> tuple[OdomInput, OdomInput, np.ndarray]:
+    """Scan 1 (with its exact flow and motion labels) and scan 2 in their sensor frames, and the true motion."""
+    world1, moving = street(1, moved=False)
+    world2, _ = street(2, moved=True)
+    points1 = transform_points(invert(np.eye(4)), world1)
+    target = world1 + np.where(moving[:, None], [CONVOY_STEP, 0.0, 0.0], 0.0)  # where scan-1 points are at t+1
+    flow = transform_points(invert(EGO), target) - points1
+    points2 = transform_points(invert(EGO), world2)
+    return (OdomInput(0, points1, flow, moving.astype(np.float32)), OdomInput(100_000_000, points2), EGO)
+
+
+def pose_error(estimate: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) of estimate^-1 truth."""
+    error = invert(estimate) @ truth
+    return float(np.linalg.norm(error[:3, 3])), float(np.degrees(rotation_angle(error)))
+
+
+def test_weighted_kabsch_recovers_the_motion_with_outliers_down_weighted():
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-20, 20, (2000, 3))
+    motion = make_pose(0.8, -0.3, 0.05, 0.03)
+    flow = transform_points(motion, points) - points
+    outliers = rng.random(len(points)) < 0.3
+    flow[outliers] += [1.0, 0.2, 0.0]  # a moving convoy: wrong for the ego motion
+    weighted = flow_transform(points, flow, np.where(outliers, 0.0, 1.0))
+    plain = flow_transform(points, flow, None)
+    assert pose_error(weighted, motion)[0] < 1e-5 and pose_error(weighted, motion)[1] < 1e-4
+    assert pose_error(plain, motion)[0] > 0.05  # the outliers pull the unweighted fit
+
+
+@pytest.mark.parametrize("method", list(OdomMethod))
+def test_each_variant_on_a_static_street_with_a_moving_convoy(method):
+    scan1, scan2, truth = convoy_scans()
+    odometry = make_odometry(method)
+    first = odometry.step(scan1 if method is not OdomMethod.POINTS else OdomInput(0, scan1.points))
+    second = odometry.step(scan2)
+    np.testing.assert_allclose(first.pose, np.eye(4))
+    translation, rotation = pose_error(second.pose, truth)
+    if method is OdomMethod.SSF:  # the static points ignore the convoy
+        assert translation < 0.02 and rotation < 0.1
+        assert second.predicted_by == "flow"
+    else:  # whole scans, or every point's flow, are pulled towards the convoy
+        assert translation > (0.1 if method is OdomMethod.POINTS else 0.04)
+
+
+def test_ssf_map_holds_no_convoy_points_and_points_map_does():
+    scan1, _, _ = convoy_scans()
+    ssf, points = make_odometry("ssf"), make_odometry("points")
+    ssf.step(scan1)
+    points.step(OdomInput(0, scan1.points))
+
+    def on_trucks(cloud: np.ndarray) -> int:
+        lanes = (np.abs(cloud[:, 1] + 6) < 1.3) | (np.abs(cloud[:, 1] - 3) < 1.3)
+        return int((lanes & (cloud[:, 2] > -1.5) & (cloud[:, 0] < 30.0)).sum())  # the cross wall stands at x = 35
+
+    assert on_trucks(ssf.map.points) == 0
+    assert on_trucks(points.map.points) > 100
+
+
+def test_covariance_grows_and_is_positive_definite():
+    scan1, scan2, _ = convoy_scans()
+    odometry = make_odometry("ssf")
+    odometry.step(scan1)
+    second = odometry.step(scan2)
+    eigenvalues = np.linalg.eigvalsh(second.covariance)
+    assert eigenvalues.min() > 0 and eigenvalues.max() < 1.0
+    third = odometry.step(OdomInput(200_000_000, scan2.points))
+    assert np.trace(third.covariance) > np.trace(second.covariance)
+
+
+def test_a_gap_keeps_the_constant_velocity_prediction():
+    odometry = make_odometry("points", OdomConfig(search_gates=(0.3,)))  # no room to search: the prediction decides
+    world, _ = street(3, moved=False)
+    world = world[world[:, 2] < -1.7]  # ground only: nothing constrains x, y or yaw
+    for index in range(3):
+        odometry.step(OdomInput(index * 100_000_000, transform_points(invert(make_pose(0.5 * index)), world)))
+    assert odometry.velocity[0] == pytest.approx(5.0, abs=0.5)
+    after_gap = odometry.step(OdomInput(500_000_000, transform_points(invert(make_pose(2.5)), world)))
+    assert after_gap.pose[0, 3] == pytest.approx(2.5, abs=0.3)  # 1 m at 5 m/s over the 0.2 s gap, then 3 periods
+
+
+def test_inputs_are_checked():
+    odometry = make_odometry("ssf")
+    points = np.zeros((10, 3), np.float32)
+    with pytest.raises(DataError, match="NaN"):
+        odometry.step(OdomInput(0, np.full((10, 3), np.nan, np.float32)))
+    with pytest.raises(DataError, match="flow"):
+        odometry.step(OdomInput(0, points, np.zeros((9, 3))))
+    with pytest.raises(ConfigError, match="segmentation"):
+        odometry.step(OdomInput(0, points, np.zeros((10, 3))))
+    with pytest.raises(ConfigError, match="unknown odometry method"):
+        make_odometry("lidar")
+
+
+def test_the_map_stays_under_its_memory_cap_and_window():
+    config = MapConfig(voxel=0.5, radius=30.0, max_voxels=2000)
+    voxel_map = VoxelMap(config)
+    rng = np.random.default_rng(0)
+    for step in range(20):
+        centre = np.array([5.0 * step, 0.0, 0.0])
+        points = centre + rng.uniform(-40, 40, (5000, 3)) * [1, 1, 0.1]
+        added = voxel_map.insert(points, np.tile([0, 0, 1.0], (5000, 1)), centre)
+        assert added > 0
+        assert len(voxel_map) <= config.max_voxels
+        assert voxel_map.nbytes <= config.max_bytes
+        assert np.linalg.norm(voxel_map.points[:, :2] - centre[:2], axis=1).max() <= config.radius + 1e-3
+    assert len(np.unique(voxel_map.codes)) == len(voxel_map)  # one point per voxel
+
+
+def test_normals_of_a_plane_and_a_wall():
+    rng = np.random.default_rng(1)
+    plane = np.c_[rng.uniform(-5, 5, (500, 2)), np.zeros(500)]
+    wall = np.c_[rng.uniform(-5, 5, 500), np.full(500, 20.0), rng.uniform(0, 3, 500)]
+    normals = estimate_normals(np.vstack([plane, wall]), 8)
+    assert np.abs(normals[:500, 2]).min() > 0.99 and np.abs(normals[500:, 1]).min() > 0.99
+
+
+@pytest.mark.parametrize("name", ["vlp16_1673400472138016708.pcd", "vlp32_1713492677464078412.pcd"])
+@pytest.mark.parametrize("method", ["points", "ssf"])
+def test_real_scan_known_motion(shared_data, name, method):
+    """Two scans of real geometry (different points, 1 cm noise) a known motion apart: recovered within 0.05 m / 0.2 deg."""
+    scan = read_scan(shared_data / "lidar_scans" / name)[:, :3].astype(np.float64)
+    scan = scan[np.isfinite(scan).all(axis=1) & (np.linalg.norm(scan[:, :2], axis=1) > 1.0)]
+    rng = np.random.default_rng(0)
+    motion = make_pose(0.8, 0.25, 0.02, np.radians(2.0))  # scan 2's pose in scan 1's frame
+    first = scan[rng.random(len(scan)) < 0.8]
+    second = transform_points(invert(motion), scan[rng.random(len(scan)) < 0.8])
+    second = second + rng.normal(0.0, 0.01, second.shape)
+    flow = transform_points(invert(motion), first) - first + rng.normal(0.0, 0.02, first.shape)  # noisy flow
+    odometry = make_odometry(method)
+    odometry.step(OdomInput(0, first, flow if method == "ssf" else None,
+                            np.zeros(len(first), np.float32) if method == "ssf" else None))
+    estimate = odometry.step(OdomInput(100_000_000, second)).pose
+    translation, rotation = pose_error(estimate, motion)
+    assert translation < 0.05 and rotation < 0.2, (translation, rotation)
