@@ -13,7 +13,7 @@ from pydantic import Field
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.sampling import voxel_indices
-from ssf_common.geometry.se3 import invert, transform_points
+from ssf_common.geometry.se3 import invert, rotation_angle, transform_points
 from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
                                              point_to_plane)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap
@@ -43,6 +43,9 @@ class OdomConfig(Section):
                                             "point-to-plane iteration after a flow-based start")
     search_gates: tuple[float, ...] = Field((2.0, 1.5, 1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.3, 0.3),
                                             description="gates of each iteration from a constant-velocity start (points method, gaps)")
+    prior_gate: tuple[float, float] = Field((0.5, 0.05), description="a flow motion farther than this (m, rad) from "
+                                            "the constant-velocity prediction is not trusted: the search starts from "
+                                            "the prediction instead")
     kernel: float = Field(0.2, gt=0.0, description="Geman-McClure scale of the point-to-plane residuals (m)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for the normals of map points")
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
@@ -89,6 +92,8 @@ class Odometry:
         self.velocity = np.zeros(6)  # twist per second, sensor frame
         self.next_motion: np.ndarray | None = None
         self.stamp_ns: int | None = None
+        self.steps = 0
+        self.rejected_flows = 0  # flow motions the constant-velocity prior overruled
 
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
@@ -157,16 +162,23 @@ class Odometry:
         return points, flow, dynamic
 
     def predict(self, stamp_ns: int) -> tuple[np.ndarray, str]:
-        """The pose of a new scan: the last pose moved by the flow's motion (covering one scan period) and constant
-        velocity for any time beyond it, or by constant velocity alone."""
+        """The pose of a new scan: the last pose moved by the flow's motion (covering one scan period, constant
+        velocity beyond it) unless the constant-velocity prediction contradicts it, else by constant velocity."""
         if self.stamp_ns is None:
             return np.eye(4), "start"
         elapsed = self.elapsed(stamp_ns)
-        if self.method is not OdomMethod.POINTS and self.next_motion is not None:
-            beyond = elapsed - self.config.scan_period
-            extra = exp_se3(self.velocity * beyond) if beyond > 0.5 * self.config.scan_period else np.eye(4)
-            return self.pose @ invert(self.next_motion) @ extra, "flow"
-        return self.pose @ exp_se3(self.velocity * elapsed), "velocity"
+        by_velocity = self.pose @ exp_se3(self.velocity * elapsed)
+        if self.method is OdomMethod.POINTS or self.next_motion is None:
+            return by_velocity, "velocity"
+        beyond = elapsed - self.config.scan_period
+        extra = exp_se3(self.velocity * beyond) if beyond > 0.5 * self.config.scan_period else np.eye(4)
+        by_flow = self.pose @ invert(self.next_motion) @ extra
+        deviation = invert(by_velocity) @ by_flow
+        if self.steps >= 2 and (np.linalg.norm(deviation[:3, 3]) > self.config.prior_gate[0]
+                                or rotation_angle(deviation) > self.config.prior_gate[1]):
+            self.rejected_flows += 1
+            return by_velocity, "velocity"
+        return by_flow, "flow"
 
     def elapsed(self, stamp_ns: int) -> float:
         """Seconds since the last scan (one scan period when stamps do not advance)."""
@@ -194,6 +206,7 @@ class Odometry:
         step_covariance = alignment.covariance if alignment.iterations else (GAP_NOISE if self.stamp_ns is not None else 0)
         self.covariance = self.covariance + step_covariance
         self.pose = alignment.transform
+        self.steps += 1
         self.stamp_ns = stamp_ns if self.stamp_ns is None or stamp_ns > self.stamp_ns else self.stamp_ns + int(
             self.config.scan_period * 1e9)
 

@@ -1,0 +1,105 @@
+"""`ssf odom run` on folders of scans and on a bag, `ssf eval odom` and `ssf bench odom` end to end, and their
+one-line errors."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from ssf_common import messages
+from ssf_common.bags import BagWriter
+from ssf_common.cli import main
+from ssf_common.dataset.kitti import read_poses, read_tum
+from ssf_common.geometry.se3 import invert, make_pose, transform_points
+from ssf_common.pointcloud import xyz_to_cloud
+from ssf_common.scan_io import read_scan, write_bin
+
+POSES = [make_pose(0.6 * index, 0.05 * index, 0.0, np.radians(0.8 * index)) for index in range(4)]
+
+
+@pytest.fixture(scope="module")
+def real_scans(shared_data) -> list[np.ndarray]:
+    """Four scans of real VLP-32 geometry taken at known poses (each a different 80 % of the points, 1 cm noise)."""
+    scan = read_scan(shared_data / "lidar_scans" / "vlp32_1713492677464078412.pcd")[:, :3].astype(np.float64)
+    rng = np.random.default_rng(0)
+    scans = [transform_points(invert(pose), scan[rng.random(len(scan)) < 0.8]) for pose in POSES]
+    return [(points + rng.normal(0.0, 0.01, points.shape)).astype(np.float32) for points in scans]
+
+
+def check_poses(out, tolerance: float = 0.05) -> None:
+    poses = read_poses(out / "poses_kitti.txt")
+    stamps, tum = read_tum(out / "poses_tum.txt")
+    assert len(poses) == len(POSES) and len(tum) == len(POSES)
+    np.testing.assert_allclose(tum, poses, atol=1e-6)
+    assert np.all(np.diff(stamps) > 0)
+    for estimate, truth in zip(poses, POSES):
+        assert np.linalg.norm(estimate[:3, 3] - truth[:3, 3]) < tolerance
+    assert (out / "config.yaml").is_file() and (out / "trajectory.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("method", ["points", "ssf"])
+def test_odom_run_on_a_folder_of_scans(tmp_path, real_scans, method, capsys):
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    for index, scan in enumerate(real_scans):
+        write_bin(folder / f"{index:06d}.bin", np.c_[scan, np.zeros(len(scan), np.float32)])
+    out = tmp_path / "out"
+    assert main(["odom", "run", str(folder), "--out", str(out), "--method", method]) == 0
+    check_poses(out)
+    assert f"method: {method}" in (out / "config.yaml").read_text()
+    assert "4 poses" in capsys.readouterr().err
+
+
+def test_odom_run_on_a_bag(tmp_path, real_scans):
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/velodyne_points", "sensor_msgs/msg/PointCloud2")
+        for index, scan in enumerate(real_scans):
+            stamp = 1_000_000_000 + index * 100_000_000
+            writer.write("/velodyne_points", messages.serialize(xyz_to_cloud(scan, messages.header(stamp, "lidar"))), stamp)
+    out = tmp_path / "out"
+    assert main(["odom", "run", str(bag), "--out", str(out), "--method", "points"]) == 0
+    check_poses(out)
+    stamps, _ = read_tum(out / "poses_tum.txt")
+    assert stamps[0] == pytest.approx(1.0)
+
+
+def test_odom_run_errors_are_one_line(tmp_path, capsys):
+    (tmp_path / "empty").mkdir()
+    assert main(["odom", "run", str(tmp_path / "empty"), "--out", str(tmp_path / "out")]) == 2
+    assert "needs at least two scan files" in capsys.readouterr().err
+    assert main(["odom", "run", str(tmp_path / "missing"), "--out", str(tmp_path / "out")]) == 2
+    assert "no such folder" in capsys.readouterr().err
+    assert main(["odom", "run", str(tmp_path / "empty"), "--out", str(tmp_path / "o"), "-p", "odom.voxel:=-1"]) == 2
+    assert "voxel" in capsys.readouterr().err
+
+
+def test_eval_odom_end_to_end(tmp_path, capsys):
+    result = tmp_path / "odom.json"
+    assert main(["eval", "odom", "--scenario", "sparse_50", "--frames", "4", "--masks", "gt", "--methods", "points",
+                 "ssf", "kiss-icp", "--json", str(result), "--plot", str(tmp_path / "traj.png"),
+                 "--map-plot", str(tmp_path / "maps.png"), "--trail-every", "2"]) == 0
+    table = capsys.readouterr().out
+    assert "RPE t RMSE" in table and "kiss-icp" in table
+    document = json.loads(result.read_text())
+    methods = document["scenarios"]["sparse_50"]["methods"]
+    assert set(methods) == {"points", "ssf", "kiss-icp"}
+    for figures in methods.values():
+        assert {"rmse", "sse", "std"} <= set(figures["rpe_translation"]) and figures["ate"]["rmse"] >= 0
+        assert 0.0 <= figures["trail_share"] <= 1.0
+    assert methods["ssf"]["rpe_translation"]["rmse"] < 0.05
+    assert document["config"]["odom"]["method"] == "ssf" and (tmp_path / "odom.config.yaml").is_file()
+    assert (tmp_path / "traj.png").stat().st_size > 0 and (tmp_path / "maps.png").stat().st_size > 0
+    assert main(["eval", "odom", "--scenario", "sparse_50", "--methods", "lidar"]) == 2
+    assert "unknown odometry method" in capsys.readouterr().err
+
+
+def test_bench_odom(tmp_path, capsys):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "odom", "--scenario", "sparse_50", "--frames", "3", "--methods", "ssf", "kiss-icp",
+                 "--json", str(out)]) == 0
+    figures = json.loads(out.read_text())
+    assert set(figures["methods"]) == {"ssf", "kiss-icp"} and figures["peak_rss_mb"] > 0
+    assert figures["methods"]["ssf"]["ms_median"] > 0

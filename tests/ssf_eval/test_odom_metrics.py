@@ -1,0 +1,65 @@
+"""Odometry metrics: evo's RPE (RMSE, SSE, STD) and ATE checked against a hand computation on hand-made
+trajectories, and KITTI drift of a known scale error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssf_common.geometry.se3 import invert, make_pose, rotation_angle
+from ssf_eval.odom.metrics import kitti_drift, score
+from ssf_eval.odom.trails import SweptPaths
+from ssf_common.records import Obstacles
+
+
+def line(steps: np.ndarray, yaws: np.ndarray | None = None) -> np.ndarray:
+    """Poses along a gently curving path from per-step lengths (and per-step turns)."""
+    yaws = np.zeros(len(steps)) if yaws is None else yaws
+    poses = [np.eye(4)]
+    for step, yaw in zip(steps, yaws):
+        poses.append(poses[-1] @ make_pose(step, 0.0, 0.0, yaw))
+    return np.stack(poses)
+
+
+def test_rpe_and_ate_match_a_hand_computation():
+    rng = np.random.default_rng(0)
+    truth = line(np.full(150, 1.0), np.full(150, 0.002))
+    estimate = line(1.0 + rng.normal(0, 0.02, 150), 0.002 + rng.normal(0, 0.001, 150))
+    stamps = np.arange(151) * 0.1
+    scores = score(truth, estimate, stamps)
+    errors = [invert(invert(truth[i]) @ truth[i + 1]) @ (invert(estimate[i]) @ estimate[i + 1]) for i in range(150)]
+    translation = np.array([np.linalg.norm(error[:3, 3]) for error in errors])
+    rotation = np.degrees([rotation_angle(error) for error in errors])
+    assert scores.rpe_translation.rmse == pytest.approx(np.sqrt(np.mean(translation ** 2)), rel=1e-6)
+    assert scores.rpe_translation.sse == pytest.approx(np.sum(translation ** 2), rel=1e-6)
+    assert scores.rpe_translation.std == pytest.approx(np.std(translation), rel=1e-6)
+    assert scores.rpe_rotation.rmse == pytest.approx(np.sqrt(np.mean(rotation ** 2)), rel=1e-4)
+    assert scores.distance == pytest.approx(150.0, rel=1e-6)
+
+
+def test_ate_is_zero_after_alignment_of_a_rigidly_moved_trajectory():
+    truth = line(np.full(60, 1.0), np.full(60, 0.01))
+    moved = make_pose(3.0, -2.0, 0.5, 0.3) @ truth
+    scores = score(truth, moved, np.arange(61) * 0.1)
+    assert scores.ate.rmse < 1e-6
+    assert scores.rpe_translation.rmse < 1e-9  # relative motions are untouched
+    assert scores.endpoint_pct > 1.0  # the end point itself is far off (no alignment there)
+
+
+def test_kitti_drift_of_a_one_percent_scale_error():
+    truth = line(np.full(250, 1.0))
+    drift = kitti_drift(truth, line(np.full(250, 1.01)))
+    assert drift.translation_pct == pytest.approx(1.0, rel=1e-6)
+    assert drift.rotation_deg_per_100m == pytest.approx(0.0, abs=1e-9)
+    assert drift.lengths == (100.0, 200.0)
+    assert np.isnan(kitti_drift(truth[:50], truth[:50]).translation_pct)  # shorter than any segment
+
+
+def test_swept_paths_mark_points_inside_agents_above_the_ground():
+    paths = SweptPaths()
+    car = Obstacles(0, "world", ids=[1], kinds=[1], centres=[[10.0, 0.0, 0.8]], sizes=[[4.0, 2.0, 1.6]], yaws=[0.0],
+                    velocities=[[5.0, 0.0, 0.0]])
+    paths.add(car)
+    paths.add(car.transformed(make_pose(2.0), "world"))  # it drove 2 m
+    points = np.array([[11.0, 0.5, 1.0], [13.5, -0.5, 1.2], [10.0, 0.0, 0.05], [10.0, 3.0, 1.0], [10.0, 0.0, 2.5]])
+    np.testing.assert_array_equal(paths.on_paths(points), [True, True, False, False, False])

@@ -1,0 +1,101 @@
+"""ssf_odom_node in a running graph: replayed semantic flow in; /odom, /tf, /ssf/path and /ssf/map out; malformed
+clouds and gaps skipped on the constant-velocity prediction."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from ssf_common import messages
+from ssf_common.conversions import odometry_from_msg, semantic_flow_to_cloud
+from ssf_common.geometry.se3 import invert, make_pose, transform_points
+from ssf_common.middleware import Node
+from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
+from ssf_common.records import Segmentation, SemanticFlow
+from ssf_odom_node.node import OdomNode
+from support import wait_until
+
+STEP = 0.5  # m of ego motion per scan, along x
+PERIOD_NS = 100_000_000
+
+
+def world(seed: int, convoy_shift: float) -> tuple[np.ndarray, np.ndarray]:
+    """A street (ground, walls, poles) and four trucks shifted along x; moving flags."""
+    rng = np.random.default_rng(seed)
+    ground = np.c_[rng.uniform(-40, 40, (3000, 2)), rng.normal(-1.8, 0.01, 3000)]
+    walls = np.r_[np.c_[rng.uniform(-40, 40, 1500), np.full(1500, 12.0), rng.uniform(-1.8, 3, 1500)],
+                  np.c_[np.full(600, 35.0), rng.uniform(-10, 10, 600), rng.uniform(-1.8, 3, 600)],
+                  np.c_[rng.choice([-20.0, -5.0, 10.0], 600) + rng.normal(0, 0.1, 600), rng.normal(-9, 0.1, 600),
+                        rng.uniform(-1.8, 2, 600)]]
+    trucks = np.c_[rng.uniform(-4, 4, 2000) + rng.choice([-15.0, 0.0, 15.0], 2000) + convoy_shift,
+                   rng.choice([-5.0, -3.0], 2000) + rng.uniform(-0.3, 0.3, 2000), rng.uniform(-1.8, 1.7, 2000)]
+    static = np.vstack([ground, walls])
+    return np.vstack([static, trucks]), np.r_[np.zeros(len(static), bool), np.ones(len(trucks), bool)]
+
+
+def semantic_flow(index: int) -> SemanticFlow:
+    """Scan `index` (sensor frame, the ego at x = STEP * index) with its exact flow and segmentation."""
+    points_world, moving = world(index, 1.0 * index)
+    pose, next_pose = make_pose(STEP * index), make_pose(STEP * (index + 1))
+    points = transform_points(invert(pose), points_world)
+    target = points_world + np.where(moving[:, None], [1.0, 0.0, 0.0], 0.0)
+    flow = transform_points(invert(next_pose), target) - points
+    segmentation = Segmentation.from_probability(moving.astype(np.float32), moving.astype(np.int32))
+    return SemanticFlow(index * PERIOD_NS, "lidar", points, flow, segmentation)
+
+
+@pytest.fixture
+def graph():
+    node = OdomNode(argv=["--ros-args", "-p", "node.map_period_s:=0.2", "-p", "node.report_period_s:=60.0",
+                          "-p", "node.mount:=[0.0, 0.0, 1.8, 0.0, 0.0, 0.0]"])
+    node.spin_in_thread()
+    probe = Node("probe")
+    received: dict[str, list] = {"odom": [], "tf": [], "path": [], "map": []}
+    probe.create_subscription("nav_msgs/msg/Odometry", "/odom", received["odom"].append)
+    probe.create_subscription("tf2_msgs/msg/TFMessage", "/tf", received["tf"].append)
+    probe.create_subscription("nav_msgs/msg/Path", "/ssf/path", received["path"].append)
+    probe.create_subscription("sensor_msgs/msg/PointCloud2", "/ssf/map", received["map"].append)
+    probe.spin_in_thread()
+    publisher = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/ssf/semantic_flow")
+    assert wait_until(lambda: publisher.get_subscription_count() > 0)
+    yield node, publisher, received
+    node.request_shutdown()
+    node.on_shutdown()
+    node.destroy_node()
+    probe.destroy_node()
+
+
+def test_node_publishes_odometry_tf_path_and_map_from_replayed_scans(graph, capfd):
+    node, publisher, received = graph
+    for index in range(4):
+        publisher.publish(semantic_flow_to_cloud(semantic_flow(index)))
+        assert wait_until(lambda: len(received["odom"]) == index + 1)
+    odometry = odometry_from_msg(received["odom"][-1])
+    assert (odometry.frame_id, odometry.child_frame_id) == ("odom", "base_link")
+    assert odometry.stamp_ns == 3 * PERIOD_NS
+    np.testing.assert_allclose(odometry.position, [3 * STEP, 0.0, 0.0], atol=0.03)  # the convoy does not pull it
+    assert odometry.twist[0] == pytest.approx(STEP / 0.1, abs=0.3)
+    assert np.linalg.eigvalsh(odometry.pose_covariance).min() > 0
+    transform = received["tf"][-1].transforms[0]
+    assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
+    assert transform.transform.translation.x == pytest.approx(3 * STEP, abs=0.03)
+    assert len(received["path"][-1].poses) == 4
+    assert wait_until(lambda: len(received["map"]) > 0)
+    map_points = cloud_to_array(received["map"][-1])
+    assert 0 < len(map_points) <= node.config.map.max_voxels
+    lanes = (map_points["y"] < -2.5) & (map_points["y"] > -5.5) & (map_points["z"] > 0.3) & (map_points["x"] < 30)
+    assert not lanes.any()  # no trucks in the static map (base_link frame: ground at z = 0)
+
+    # a malformed message is logged and skipped; a missing scan is bridged by the prediction
+    bad = xyz_to_cloud(np.zeros((5, 3), np.float32), messages.header(4 * PERIOD_NS, "lidar"))  # no flow/label fields
+    publisher.publish(bad)
+    time.sleep(0.3)
+    assert len(received["odom"]) == 4
+    publisher.publish(semantic_flow_to_cloud(semantic_flow(5)))  # scan 4 never arrives
+    assert wait_until(lambda: len(received["odom"]) == 5)
+    after_gap = odometry_from_msg(received["odom"][-1])
+    assert after_gap.stamp_ns == 5 * PERIOD_NS
+    np.testing.assert_allclose(after_gap.position, [5 * STEP, 0.0, 0.0], atol=0.05)
+    assert "dropped a message on /ssf/semantic_flow" in capfd.readouterr().err
