@@ -66,6 +66,8 @@ def register(groups: CommandGroups) -> None:
     bench.add_argument("--seed", type=int, default=0)
     bench.add_argument("--frames", type=int, default=40, help="timed scans per method (default 40)")
     bench.add_argument("--methods", "--method", nargs="+", default=list(ALL_METHODS), metavar="M")
+    bench.add_argument("--backends", action="store_true",
+                       help="also time the refinement with numpy (ours), Open3D and small_gicp on the same scans and maps")
     bench.add_argument("--json", type=Path)
     add_odom_options(bench)
     bench.set_defaults(func=run_bench)
@@ -98,16 +100,15 @@ def check_methods(methods: list[str]) -> None:
 
 
 def perception_for(masks: str, seed: int):
-    """The project's flow estimator on whole scans, and the fusion loop when the masks come from the segmentation."""
+    """The project's perception on whole scans (ssf_eval.pipeline: flow estimator, segmenter, fusion loop, at their
+    defaults); the loop runs only when the masks come from the segmentation."""
     from ssf_common.config import build
     from ssf_eval.odom.evaluate import MaskSource, Perception
-    from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
-    from ssf_seg_node.core.fusion import FusionConfig, FusionLoop
-    from ssf_seg_node.core.segmenter import make_segmenter
+    from ssf_eval.pipeline import PerceptionConfig, SsfPerception
+    from ssf_flow_node.core.estimator import WHOLE_SCAN
 
-    estimator = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN))
-    fusion = FusionLoop(estimator, make_segmenter("geometric"), FusionConfig()) if masks == "seg" else None
-    return Perception(MaskSource(masks), estimator, fusion, seed)
+    pipeline = SsfPerception(build(PerceptionConfig, {"flow": WHOLE_SCAN}))
+    return Perception(MaskSource(masks), pipeline.loop.estimator, pipeline.loop if masks == "seg" else None, seed)
 
 
 def format_table(results: dict) -> str:
@@ -236,11 +237,12 @@ def run_bench(args: argparse.Namespace) -> int:
         raise ConfigError(f"--frames must be at least 2, got {args.frames}")
     config = odom_config(args)
     perception = perception_for("noisy", args.seed)
-    scans, inputs = [], []
+    scans, inputs, truths = [], [], []
     print(f"computing flow and masks for {args.frames} scans of {args.scenario} ...", file=sys.stderr, flush=True)
     for scan in sim_scans(scenario_of(args.scenario), args.seed, args.frames, 2.0):
         perceived = perception(scan)
         scans.append(scan.points)
+        truths.append(scan.pose)
         inputs.append({"points": OdomInput(scan.stamp_ns, scan.points),
                        "flow": OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain),
                        "ssf": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob)})
@@ -263,9 +265,18 @@ def run_bench(args: argparse.Namespace) -> int:
         figures[name] = {"ms_median": float(np.median(spent)), "ms_p95": float(np.percentile(spent, 95)),
                          "frames": len(spent), "points": int(np.median([len(points) for points in scans]))}
         print(f"{name:<9} median {figures[name]['ms_median']:6.1f} ms  p95 {figures[name]['ms_p95']:6.1f} ms", flush=True)
+    backends = {}
+    if args.backends:
+        from ssf_eval.odom.backends import compare_backends
+
+        log = lambda line: print(line, file=sys.stderr, flush=True)
+        backends = compare_backends(make_odometry("ssf", config), [frame["ssf"] for frame in inputs], truths, log)
+        for name, figure in backends.items():
+            print(f"refine {name:<10} median {figure['ms_median']:6.1f} ms  p95 {figure['ms_p95']:6.1f} ms  "
+                  f"pose error median {figure['pose_error_median_m']:.4f} m", flush=True)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak_rss_mb {peak:.0f}")
     if args.json:
-        write_result(args.json, {"methods": figures, "peak_rss_mb": peak, "scenario": args.scenario},
+        write_result(args.json, {"methods": figures, "backends": backends, "peak_rss_mb": peak, "scenario": args.scenario},
                      {"odom": config, "methods": args.methods, "scenario": args.scenario, "seed": args.seed})
     return 0

@@ -101,10 +101,10 @@ class Odometry:
         # 1. predict: the motion the last scan's static flow gave, else constant velocity
         predicted, source = self.predict(frame.stamp_ns)
         # 2. the points this method registers and maps: the static ones (ssf) or all
-        registered = self.registered_points(points, dynamic)
+        registered, weights = self.registered_points(points, dynamic)
         # 3. a few point-to-plane iterations against the local static map
         gates = self.config.refine_gates if source == "flow" else self.config.search_gates
-        alignment = self.refine(registered, predicted, gates)
+        alignment = self.refine(registered, weights, predicted, gates)
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the registered points join the map at the new pose
@@ -186,17 +186,20 @@ class Odometry:
             return self.config.scan_period
         return (stamp_ns - self.stamp_ns) * 1e-9
 
-    def registered_points(self, points: np.ndarray, dynamic: np.ndarray | None) -> np.ndarray:
-        """The points registered and mapped: the static ones for ssf, all for the other methods."""
+    def registered_points(self, points: np.ndarray, dynamic: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The points registered and mapped, with their weights: the static ones weighted by their static
+        probability for ssf, all of them alike for the other methods."""
         if self.method is OdomMethod.SSF and dynamic is not None:
-            return points[dynamic <= self.config.static_threshold]
-        return points
+            static = dynamic <= self.config.static_threshold
+            return points[static], 1.0 - dynamic[static]
+        return points, None
 
-    def refine(self, points: np.ndarray, predicted: np.ndarray, gates: tuple[float, ...]) -> Alignment:
+    def refine(self, points: np.ndarray, weights: np.ndarray | None, predicted: np.ndarray,
+               gates: tuple[float, ...]) -> Alignment:
         """Point-to-plane Gauss-Newton of the registered points against the map, from the predicted pose."""
         if len(self.map) == 0:
             return Alignment(predicted, np.zeros((6, 6)), 0, 0.0, 0)
-        return point_to_plane(points, None, self.map.target(), predicted, gates, self.config.kernel)
+        return point_to_plane(points, weights, self.map.target(), predicted, gates, self.config.kernel)
 
     def chain(self, stamp_ns: int, alignment: Alignment) -> None:
         """Take the refined pose; grow the covariance by this step's; update the velocity."""

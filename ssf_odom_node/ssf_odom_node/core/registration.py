@@ -26,7 +26,8 @@ class PlaneTarget(NamedTuple):
     def build(cls, points: np.ndarray, normals: np.ndarray) -> PlaneTarget:
         """A target of points and their normals."""
         points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        return cls(points, np.asarray(normals, dtype=np.float64).reshape(-1, 3), cKDTree(points))
+        return cls(points, np.asarray(normals, dtype=np.float64).reshape(-1, 3),
+                   cKDTree(points, balanced_tree=False, compact_nodes=False))  # 2x faster to build, as fast to query
 
     def __len__(self) -> int:
         return len(self.points)

@@ -20,6 +20,8 @@ class MapConfig(Section):
     voxel: float = Field(0.8, gt=0.0, description="voxel edge (m): the map keeps one point per voxel")
     radius: float = Field(60.0, gt=0.0, description="voxels farther than this from the vehicle are dropped (m)")
     max_voxels: int = Field(60000, ge=100, description="cap on stored voxels (the farthest go first)")
+    refresh: float = Field(0.1, ge=0.0, le=1.0, description="the registration target (KD-tree) is rebuilt once this "
+                           "share of the map is new since the last build (0: every scan)")
 
     @property
     def max_bytes(self) -> int:
@@ -43,6 +45,7 @@ class VoxelMap:
         self.normals = np.zeros((0, 3), np.float32)
         self.codes = np.zeros(0, np.int64)
         self._target: PlaneTarget | None = None
+        self._added_since_build = 0
 
     def __len__(self) -> int:
         return len(self.codes)
@@ -66,7 +69,7 @@ class VoxelMap:
             self.normals = np.concatenate([self.normals, np.asarray(normals, np.float32)[new]])
             self.codes = np.concatenate([self.codes, voxel_codes(np.asarray(points)[new], self.config.voxel)])
         self.crop(centre)
-        self._target = None
+        self._added_since_build += len(new)
         return len(new)
 
     def crop(self, centre: np.ndarray) -> None:
@@ -80,7 +83,9 @@ class VoxelMap:
             self.points, self.normals, self.codes = self.points[keep], self.normals[keep], self.codes[keep]
 
     def target(self) -> PlaneTarget:
-        """The map as a registration target (its KD-tree built once per change)."""
-        if self._target is None:
+        """The map as a registration target; its KD-tree is rebuilt once `refresh` of the map is new (voxels that
+        left the window stay in it until then: they are still true surfaces)."""
+        if self._target is None or self._added_since_build > self.config.refresh * max(len(self._target), 1):
             self._target = PlaneTarget.build(self.points, self.normals)
+            self._added_since_build = 0
         return self._target
