@@ -16,7 +16,7 @@ def generate_launch_description():
             executable="ssf_odom_node",
             parameters=[{
                 "method": LaunchConfiguration("method"),
-                "node.input": LaunchConfiguration("input"),
+                "input": LaunchConfiguration("input"),
                 "use_sim_time": LaunchConfiguration("use_sim_time"),
             }],
             output="screen",

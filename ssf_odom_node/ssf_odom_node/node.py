@@ -65,9 +65,9 @@ class OdomNode(Node):
     def __init__(self, argv: list[str] | None = None) -> None:
         super().__init__("ssf_odom_node", argv=argv)
         self.config = self.declare_config(OdomConfig)
-        self.wiring = self.declare_config(OdomNodeConfig, prefix="node.")
+        self.wiring = self.declare_config(OdomNodeConfig)
         if self.wiring.input not in ("semantic_flow", "flow_mask"):
-            raise ConfigError(f"parameter node.input: '{self.wiring.input}' is not semantic_flow or flow_mask")
+            raise ConfigError(f"parameter input: '{self.wiring.input}' is not semantic_flow or flow_mask")
         self.odometry = make_odometry(config=self.config)
         self.mount = mount_matrix(self.wiring.mount)
         self.sensor_frame = ""

@@ -48,8 +48,8 @@ def semantic_flow(index: int) -> SemanticFlow:
 
 @pytest.fixture
 def graph():
-    node = OdomNode(argv=["--ros-args", "-p", "node.map_period_s:=0.2", "-p", "node.report_period_s:=60.0",
-                          "-p", "node.mount:=[0.0, 0.0, 1.8, 0.0, 0.0, 0.0]"])
+    node = OdomNode(argv=["--ros-args", "-p", "map_period_s:=0.2", "-p", "report_period_s:=60.0",
+                          "-p", "mount:=[0.0, 0.0, 1.8, 0.0, 0.0, 0.0]"])
     node.spin_in_thread()
     probe = Node("probe")
     received: dict[str, list] = {"odom": [], "tf": [], "path": [], "map": []}
