@@ -78,18 +78,18 @@ class OdomNode(Node):
         self.path_pub = self.create_publisher("nav_msgs/msg/Path", topics.PATH, QOS_DEFAULT)
         self.map_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MAP, QOS_DEFAULT)
         self.worker = LatestWorker(self._step, ("scan",), self.get_logger(), "odom")
-        if self.wiring.input == "semantic_flow":
+        self._compute_ms: list[float] = []
+        self._last_stamp: int | None = None
+        self.create_timer(self.wiring.map_period_s, self._publish_map)
+        self.create_timer(self.wiring.report_period_s, self._report)
+        self.get_logger().info(f"method '{self.config.method.value}' from {self.wiring.input}")
+        if self.wiring.mount_from_tf:
+            self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
+        if self.wiring.input == "semantic_flow":  # inputs last: the node is whole once they are matched
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, self.on_semantic_flow, QOS_DEFAULT)
         else:
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK, self.on_mask, QOS_DEFAULT)
-        if self.wiring.mount_from_tf:
-            self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
-        self.create_timer(self.wiring.map_period_s, self._publish_map)
-        self.create_timer(self.wiring.report_period_s, self._report)
-        self._compute_ms: list[float] = []
-        self._last_stamp: int | None = None
-        self.get_logger().info(f"method '{self.config.method.value}' from {self.wiring.input}")
 
     def on_semantic_flow(self, msg: Any) -> None:
         """Queue one scan's converged flow and segmentation."""
