@@ -116,14 +116,20 @@ def test_covariance_grows_and_is_positive_definite():
 
 
 def test_a_gap_keeps_the_constant_velocity_prediction():
-    odometry = make_odometry("points", OdomConfig(search_gates=(0.3,)))  # no room to search: the prediction decides
-    world, _ = street(3, moved=False)
-    world = world[world[:, 2] < -1.7]  # ground only: nothing constrains x, y or yaw
+    """Scans 0-2 with flow, scan 3 missing: scan 4 is found only from the flow's motion plus constant velocity."""
+    config = OdomConfig(refine_gates=(0.3,), search_gates=(0.3,), ssf_range=100.0)  # no room to search
+    odometry = make_odometry("ssf", config)
+    world, moving = street(3, moved=False)
+    world = world[~moving]
+    scan = lambda index: transform_points(invert(make_pose(0.5 * index)), world)
     for index in range(3):
-        odometry.step(OdomInput(index * 100_000_000, transform_points(invert(make_pose(0.5 * index)), world)))
-    assert odometry.velocity[0] == pytest.approx(5.0, abs=0.5)
-    after_gap = odometry.step(OdomInput(500_000_000, transform_points(invert(make_pose(2.5)), world)))
-    assert after_gap.pose[0, 3] == pytest.approx(2.5, abs=0.3)  # 1 m at 5 m/s over the 0.2 s gap, then 3 periods
+        points = scan(index)
+        flow = scan(index + 1) - points
+        odometry.step(OdomInput(index * 100_000_000, points, flow, np.zeros(len(points), np.float32)))
+    assert odometry.velocity[0] == pytest.approx(5.0, abs=0.05)
+    after_gap = odometry.step(OdomInput(400_000_000, scan(4)))
+    assert after_gap.pose[0, 3] == pytest.approx(2.0, abs=0.02)  # 0.5 m by the flow, 0.5 m at 5 m/s beyond it
+    assert after_gap.predicted_by == "flow"
 
 
 def test_inputs_are_checked():

@@ -68,7 +68,8 @@ def compare_backends(odometry: Odometry, frames: list[OdomInput], truths: list[n
     for frame, truth in zip(frames, truths):
         if odometry.steps >= 1 and len(odometry.map):
             points, _, dynamic = odometry.reduce(*odometry.check(frame))
-            predicted, _ = odometry.predict(frame.stamp_ns)
+            by_flow, by_velocity = odometry.predict(frame.stamp_ns)
+            predicted = by_velocity if by_flow is None else by_flow
             source, _ = odometry.registered_points(points, dynamic)
             map_points = np.asarray(odometry.map.points, np.float64)
             map_normals = np.asarray(odometry.map.normals, np.float64)

@@ -43,9 +43,11 @@ class OdomConfig(Section):
                                             "point-to-plane iteration after a flow-based start")
     search_gates: tuple[float, ...] = Field((2.0, 1.5, 1.0, 0.8, 0.6, 0.5, 0.4, 0.3, 0.3, 0.3),
                                             description="gates of each iteration from a constant-velocity start (points method, gaps)")
-    prior_gate: tuple[float, float] = Field((0.5, 0.05), description="a flow motion farther than this (m, rad) from "
-                                            "the constant-velocity prediction is not trusted: the search starts from "
-                                            "the prediction instead")
+    prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
+                                            "the constant-velocity prediction is checked: a search from that "
+                                            "prediction runs too, and the map keeps whichever fits more points")
+    ssf_range: float = Field(35.0, gt=0.0, description="ssf registers and maps static points within this range (m): "
+                             "the segmentation sees moving objects only where the flow is estimated")
     kernel: float = Field(0.2, gt=0.0, description="Geman-McClure scale of the point-to-plane residuals (m)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for the normals of map points")
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
@@ -98,13 +100,12 @@ class Odometry:
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
         points, flow, dynamic = self.reduce(*self.check(frame))
-        # 1. predict: the motion the last scan's static flow gave, else constant velocity
-        predicted, source = self.predict(frame.stamp_ns)
+        # 1. predict: the motion the last scan's static flow gave, and constant velocity
+        by_flow, by_velocity = self.predict(frame.stamp_ns)
         # 2. the points this method registers and maps: the static ones (ssf) or all
         registered, weights = self.registered_points(points, dynamic)
-        # 3. a few point-to-plane iterations against the local static map
-        gates = self.config.refine_gates if source == "flow" else self.config.search_gates
-        alignment = self.refine(registered, weights, predicted, gates)
+        # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ)
+        alignment, source = self.refine(registered, weights, by_flow, by_velocity)
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the registered points join the map at the new pose
@@ -161,24 +162,24 @@ class Odometry:
             raise ConfigError("odometry method 'ssf' needs the segmentation (dynamic probability) with the flow")
         return points, flow, dynamic
 
-    def predict(self, stamp_ns: int) -> tuple[np.ndarray, str]:
-        """The pose of a new scan: the last pose moved by the flow's motion (covering one scan period, constant
-        velocity beyond it) unless the constant-velocity prediction contradicts it, else by constant velocity."""
+    def predict(self, stamp_ns: int) -> tuple[np.ndarray | None, np.ndarray]:
+        """The pose of a new scan by the flow's motion (covering one scan period, constant velocity beyond it; None
+        without flow) and by constant velocity alone."""
         if self.stamp_ns is None:
-            return np.eye(4), "start"
+            return None, np.eye(4)
         elapsed = self.elapsed(stamp_ns)
         by_velocity = self.pose @ exp_se3(self.velocity * elapsed)
         if self.method is OdomMethod.POINTS or self.next_motion is None:
-            return by_velocity, "velocity"
+            return None, by_velocity
         beyond = elapsed - self.config.scan_period
         extra = exp_se3(self.velocity * beyond) if beyond > 0.5 * self.config.scan_period else np.eye(4)
-        by_flow = self.pose @ invert(self.next_motion) @ extra
+        return self.pose @ invert(self.next_motion) @ extra, by_velocity
+
+    def agree(self, by_flow: np.ndarray, by_velocity: np.ndarray) -> bool:
+        """Whether the flow's prediction lies within the prior gate of the constant-velocity one."""
         deviation = invert(by_velocity) @ by_flow
-        if self.steps >= 2 and (np.linalg.norm(deviation[:3, 3]) > self.config.prior_gate[0]
-                                or rotation_angle(deviation) > self.config.prior_gate[1]):
-            self.rejected_flows += 1
-            return by_velocity, "velocity"
-        return by_flow, "flow"
+        return bool(np.linalg.norm(deviation[:3, 3]) <= self.config.prior_gate[0]
+                    and rotation_angle(deviation) <= self.config.prior_gate[1])
 
     def elapsed(self, stamp_ns: int) -> float:
         """Seconds since the last scan (one scan period when stamps do not advance)."""
@@ -187,19 +188,31 @@ class Odometry:
         return (stamp_ns - self.stamp_ns) * 1e-9
 
     def registered_points(self, points: np.ndarray, dynamic: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        """The points registered and mapped, with their weights: the static ones weighted by their static
-        probability for ssf, all of them alike for the other methods."""
+        """The points registered and mapped, with their weights: for ssf the static ones within the segmentation's
+        range, weighted by their static probability; all of them alike for the other methods."""
         if self.method is OdomMethod.SSF and dynamic is not None:
-            static = dynamic <= self.config.static_threshold
+            near = np.einsum("ij,ij->i", points[:, :2], points[:, :2]) <= self.config.ssf_range ** 2
+            static = (dynamic <= self.config.static_threshold) & near
             return points[static], 1.0 - dynamic[static]
         return points, None
 
-    def refine(self, points: np.ndarray, weights: np.ndarray | None, predicted: np.ndarray,
-               gates: tuple[float, ...]) -> Alignment:
-        """Point-to-plane Gauss-Newton of the registered points against the map, from the predicted pose."""
+    def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
+               by_velocity: np.ndarray) -> tuple[Alignment, str]:
+        """Point-to-plane Gauss-Newton of the registered points against the map: a few iterations from the flow's
+        prediction; where it contradicts constant velocity (or there is no flow), a search from constant velocity
+        too, and the result that matches more points wins."""
         if len(self.map) == 0:
-            return Alignment(predicted, np.zeros((6, 6)), 0, 0.0, 0)
-        return point_to_plane(points, weights, self.map.target(), predicted, gates, self.config.kernel)
+            return Alignment(by_velocity, np.zeros((6, 6)), 0, 0.0, 0), "start"
+        target = self.map.target()
+        if by_flow is not None:
+            from_flow = point_to_plane(points, weights, target, by_flow, self.config.refine_gates, self.config.kernel)
+            if self.steps < 2 or self.agree(by_flow, by_velocity):
+                return from_flow, "flow"
+        searched = point_to_plane(points, weights, target, by_velocity, self.config.search_gates, self.config.kernel)
+        if by_flow is None or searched.inliers <= from_flow.inliers:
+            return (searched, "velocity") if by_flow is None else (from_flow, "flow")
+        self.rejected_flows += 1
+        return searched, "velocity"
 
     def chain(self, stamp_ns: int, alignment: Alignment) -> None:
         """Take the refined pose; grow the covariance by this step's; update the velocity."""

@@ -13,6 +13,7 @@ from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.geometry.neighbours import knn
 
 MIN_CONSTRAINTS = 30  # fewer matched points than this: the step is not trusted
+DEGENERATE = 1e-3  # directions whose Hessian eigenvalue is below this share of the largest are left alone
 
 
 class PlaneTarget(NamedTuple):
@@ -101,7 +102,7 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
         jacobian = np.hstack([n, np.cross(x, n)])  # d residual / d (translation, rotation), perturbation on the left
         hessian = (jacobian * robust[:, None]).T @ jacobian
         gradient = (jacobian * robust[:, None]).T @ residual
-        step = -np.linalg.solve(hessian + 1e-6 * np.eye(6), gradient)
+        step = constrained_step(hessian, gradient)
         transform = exp_se3(step) @ transform
         rmse = float(np.sqrt((robust * residual ** 2).sum() / max(robust.sum(), 1e-12)))
         done += 1
@@ -110,9 +111,17 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
     return Alignment(transform, plane_covariance(hessian, rmse, inliers), inliers, rmse, done)
 
 
+def constrained_step(hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+    """The Gauss-Newton step -H^-1 g in the directions the residuals constrain; none along degenerate directions
+    (a corridor's length, a plane's in-plane motion), so the prediction stands there."""
+    values, vectors = np.linalg.eigh(hessian)
+    keep = values > DEGENERATE * max(values[-1], 1e-12)
+    return -(vectors[:, keep] / values[keep]) @ (vectors[:, keep].T @ gradient)
+
+
 def plane_covariance(hessian: np.ndarray, rmse: float, inliers: int) -> np.ndarray:
     """Covariance sigma^2 H^-1 of a point-to-plane fit (sigma: its RMS residual); large where unconstrained."""
     if inliers < MIN_CONSTRAINTS or not np.isfinite(rmse):
         return np.eye(6)
     sigma2 = max(rmse, 1e-3) ** 2
-    return sigma2 * np.linalg.pinv(hessian + 1e-9 * np.eye(6))
+    return sigma2 * np.linalg.inv(hessian + 1e-9 * np.eye(6))  # degenerate directions: very uncertain
