@@ -36,10 +36,10 @@ def street(seed: int, moved: bool) -> tuple[np.ndarray, np.ndarray]:
     rng = np.random.default_rng(seed)
     ground = np.c_[rng.uniform(-40, 40, (3000, 2)), rng.normal(-1.8, 0.01, 3000)]
     wall = np.c_[rng.uniform(-40, 40, 1500), np.full(1500, 12.0), rng.uniform(-1.8, 3.0, 1500)]
-    cross = np.c_[np.full(500, 35.0), rng.uniform(-10, 10, 500), rng.uniform(-1.8, 3.0, 500)]
+    cross = np.c_[np.full(500, 28.0), rng.uniform(-10, 10, 500), rng.uniform(-1.8, 3.0, 500)]
     shift = CONVOY_STEP if moved else 0.0
     trucks = [faces(rng, (x + shift, y, -1.8), (8.0, 2.5, 3.5), 600)
-              for x, y in ((-20, -6), (-8, -6), (6, -6), (18, -6), (-14, 3), (0, 3), (12, 3), (24, 3))]
+              for x, y in ((-20, -6), (-8, -6), (4, -6), (14, -6), (-14, 3), (-2, 3), (10, 3), (-26, 3))]
     static = np.vstack([ground, wall, cross])
     points = np.vstack([static, *trucks])
     return points, np.r_[np.zeros(len(static), bool), np.ones(len(points) - len(static), bool)]
@@ -98,7 +98,7 @@ def test_ssf_map_holds_no_convoy_points_and_points_map_does():
 
     def on_trucks(cloud: np.ndarray) -> int:
         lanes = (np.abs(cloud[:, 1] + 6) < 1.3) | (np.abs(cloud[:, 1] - 3) < 1.3)
-        return int((lanes & (cloud[:, 2] > -1.5) & (cloud[:, 0] < 30.0)).sum())  # the cross wall stands at x = 35
+        return int((lanes & (cloud[:, 2] > -1.5) & (cloud[:, 0] < 25.0)).sum())  # the cross wall stands at x = 28
 
     assert on_trucks(ssf.map.points) == 0
     assert on_trucks(points.map.points) > 100

@@ -46,8 +46,8 @@ class OdomConfig(Section):
     prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
                                             "the constant-velocity prediction is checked: a search from that "
                                             "prediction runs too, and the map keeps whichever fits more points")
-    ssf_range: float = Field(35.0, gt=0.0, description="ssf registers and maps static points within this range (m): "
-                             "the segmentation sees moving objects only where the flow is estimated")
+    ssf_range: float = Field(35.0, gt=0.0, description="ssf maps static points within this range (m) only: the "
+                             "segmentation sees moving objects only where the flow is estimated")
     kernel: float = Field(0.2, gt=0.0, description="Geman-McClure scale of the point-to-plane residuals (m)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for the normals of map points")
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
@@ -108,8 +108,8 @@ class Odometry:
         alignment, source = self.refine(registered, weights, by_flow, by_velocity)
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
-        # 5. the registered points join the map at the new pose
-        self.update_map(registered)
+        # 5. the registered points join the map at the new pose (for ssf: where the segmentation sees)
+        self.update_map(self.mapped_points(registered))
         # 6. the motion to the next scan from the static points and their flow (weighted Kabsch)
         self.next_motion = self.flow_motion(points, flow, dynamic)
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
@@ -188,13 +188,18 @@ class Odometry:
         return (stamp_ns - self.stamp_ns) * 1e-9
 
     def registered_points(self, points: np.ndarray, dynamic: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
-        """The points registered and mapped, with their weights: for ssf the static ones within the segmentation's
-        range, weighted by their static probability; all of them alike for the other methods."""
+        """The points registered, with their weights: for ssf the static ones, weighted by their static probability;
+        all of them alike for the other methods."""
         if self.method is OdomMethod.SSF and dynamic is not None:
-            near = np.einsum("ij,ij->i", points[:, :2], points[:, :2]) <= self.config.ssf_range ** 2
-            static = (dynamic <= self.config.static_threshold) & near
+            static = dynamic <= self.config.static_threshold
             return points[static], 1.0 - dynamic[static]
         return points, None
+
+    def mapped_points(self, registered: np.ndarray) -> np.ndarray:
+        """The registered points that join the map: for ssf only those within the segmentation's range."""
+        if self.method is not OdomMethod.SSF:
+            return registered
+        return registered[np.einsum("ij,ij->i", registered[:, :2], registered[:, :2]) <= self.config.ssf_range ** 2]
 
     def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
                by_velocity: np.ndarray) -> tuple[Alignment, str]:

@@ -102,7 +102,7 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
         jacobian = np.hstack([n, np.cross(x, n)])  # d residual / d (translation, rotation), perturbation on the left
         hessian = (jacobian * robust[:, None]).T @ jacobian
         gradient = (jacobian * robust[:, None]).T @ residual
-        step = constrained_step(hessian, gradient)
+        step = constrained_step(hessian, gradient, float(np.sqrt(np.mean(np.einsum("ij,ij->i", x, x)))))
         transform = exp_se3(step) @ transform
         rmse = float(np.sqrt((robust * residual ** 2).sum() / max(robust.sum(), 1e-12)))
         done += 1
@@ -111,12 +111,15 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
     return Alignment(transform, plane_covariance(hessian, rmse, inliers), inliers, rmse, done)
 
 
-def constrained_step(hessian: np.ndarray, gradient: np.ndarray) -> np.ndarray:
+def constrained_step(hessian: np.ndarray, gradient: np.ndarray, length: float) -> np.ndarray:
     """The Gauss-Newton step -H^-1 g in the directions the residuals constrain; none along degenerate directions
-    (a corridor's length, a plane's in-plane motion), so the prediction stands there."""
-    values, vectors = np.linalg.eigh(hessian)
+    (a corridor's length, a plane's in-plane motion), so the prediction stands there. Rotations are measured as
+    the motion they cause at `length` (m), so that both kinds of direction compare."""
+    scale = np.r_[np.ones(3), np.full(3, 1.0 / max(length, 1e-6))]  # (translation, rotation * length) units
+    scaled = hessian * np.outer(scale, scale)
+    values, vectors = np.linalg.eigh(scaled)
     keep = values > DEGENERATE * max(values[-1], 1e-12)
-    return -(vectors[:, keep] / values[keep]) @ (vectors[:, keep].T @ gradient)
+    return scale * -((vectors[:, keep] / values[keep]) @ (vectors[:, keep].T @ (gradient * scale)))
 
 
 def plane_covariance(hessian: np.ndarray, rmse: float, inliers: int) -> np.ndarray:
