@@ -211,6 +211,27 @@ HOSTILE: dict[str, Case] = {
     ),
     "train flow": lambda d, f: ["train", "flow", "--data", str(f / "no_pairs"), "--out", str(f / "w.pt")],
     "eval flow": lambda d, f: ["eval", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
+    "odom run": one_of(
+        lambda d, f: ["odom", "run", odom_folder(d, f), "--out", str(f / "o"), "--method", "points"],
+        lambda d, f: ["odom", "run", odom_folder(d, f, hostile=False), "--out", bad_output(d, f)],
+        lambda d, f: ["odom", "run", odom_folder(d, f, hostile=False), "--out", str(f / "o"),
+                      "--config", hostile_yaml_file(d, f)],
+        lambda d, f: ["odom", "run", odom_folder(d, f, hostile=False), "--out", str(f / "o"), "-p", d(bad_overrides())],
+        lambda d, f: ["odom", "run", odom_folder(d, f, hostile=False), "--out", str(f / "o"),
+                      f"--period={d(not_positive())}"],
+        lambda d, f: ["odom", "run", hostile_bag(d, f), "--out", str(f / "o")],
+    ),
+    "eval odom": one_of(
+        lambda d, f: ["eval", "odom", "--scenario", hostile_yaml_file(d, f), "--frames", "2"],
+        lambda d, f: ["eval", "odom", "--scenario", "empty", f"--seed={d(bad_seeds())}"],
+        lambda d, f: ["eval", "odom", "--scenario", "empty", "-p", d(bad_overrides())],
+        lambda d, f: ["eval", "odom", "--scenario", "empty", d(st.sampled_from(["--json", "--plot"])), bad_output(d, f)],
+    ),
+    "bench odom": one_of(
+        lambda d, f: ["bench", "odom", "--scenario", hostile_yaml_file(d, f), "--frames", "2"],
+        lambda d, f: ["bench", "odom", "--scenario", "empty", "--json", bad_output(d, f)],
+        lambda d, f: ["bench", "odom", "--scenario", "empty", "--odom-config", hostile_yaml_file(d, f)],
+    ),
     "bench flow": lambda d, f: ["bench", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
 }
 
@@ -218,6 +239,21 @@ HOSTILE: dict[str, Case] = {
 def bad_ports() -> st.SearchStrategy[int]:
     """Port numbers no server can listen on."""
     return st.one_of(st.integers(max_value=-1), st.integers(min_value=65536))
+
+
+def odom_folder(draw: st.DrawFn, folder: Path, hostile: bool = True) -> str:
+    """A folder of two scans for `ssf odom run`: a good one, then a hostile one (or a second good one)."""
+    scans_dir = folder / "scans"
+    scans_dir.mkdir(exist_ok=True)
+    for old in scans_dir.iterdir():
+        old.unlink()
+    np.save(scans_dir / "000.npy", np.random.default_rng(0).normal(scale=10.0, size=(64, 3)).astype(np.float32))
+    second = hostile_scan_file(draw, folder) if hostile else None
+    if second is None:
+        np.save(scans_dir / "001.npy", np.random.default_rng(1).normal(scale=10.0, size=(64, 3)).astype(np.float32))
+    else:
+        Path(second).rename(scans_dir / ("001" + Path(second).suffix))
+    return str(scans_dir)
 
 
 def hostile_bag(draw: st.DrawFn, folder: Path, readable: bool = True) -> str:
@@ -238,7 +274,8 @@ def test_every_command_has_bad_input_cases():
 
 
 SLOW = {name: 8 for name in ("eval flow", "bench flow", "seg estimate", "eval seg", "eval fusion", "bench seg",
-                              "bench fusion")}  # commands that import torch and build estimators before they read input
+                              "bench fusion", "odom run", "eval odom", "bench odom")}
+# (commands that import torch and build estimators before they read input)
 
 
 @pytest.mark.timeout(240)

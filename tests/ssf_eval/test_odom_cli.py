@@ -14,7 +14,7 @@ from ssf_common.cli import main
 from ssf_common.dataset.kitti import read_poses, read_tum
 from ssf_common.geometry.se3 import invert, make_pose, transform_points
 from ssf_common.pointcloud import xyz_to_cloud
-from ssf_common.scan_io import read_scan, write_bin
+from ssf_common.scans import read_scan, write_bin
 
 POSES = [make_pose(0.6 * index, 0.05 * index, 0.0, np.radians(0.8 * index)) for index in range(4)]
 

@@ -8,7 +8,7 @@ import pytest
 
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, transform_points
-from ssf_common.scan_io import read_scan
+from ssf_common.scans import read_scan
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, make_odometry
 from ssf_odom_node.core.registration import estimate_normals, flow_transform
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap

@@ -82,8 +82,7 @@ def add_odom_options(parser: argparse.ArgumentParser) -> None:
 
 def odom_config(args: argparse.Namespace):
     """The odometry config from --odom-config and -p overrides."""
-    from ssf_common.config import build, read_yaml
-    from ssf_flow_node.cli import parse_overrides
+    from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_odom_node.core.odometry import OdomConfig
 
     file = read_yaml(args.odom_config) if args.odom_config else {}
@@ -132,17 +131,15 @@ def format_table(results: dict) -> str:
 
 def run_odom(args: argparse.Namespace) -> int:
     """ssf odom run."""
-    from ssf_common.config import build, read_yaml
-    from ssf_common.errors import ConfigError
+    from ssf_common.checks import require_finite
+    from ssf_common.config import build, parse_overrides, read_yaml
+    from ssf_common.paths import check_writable_dir
     from ssf_eval.odom.run import OdomRunConfig, Perceiver, open_source, progress_bar, run_odometry, write_outputs
-    from ssf_flow_node.cli import parse_overrides
     from ssf_flow_node.core.estimator import WHOLE_SCAN
     from ssf_odom_node.core.odometry import make_odometry
 
-    if not args.period > 0:
-        raise ConfigError(f"--period must be positive, got {args.period}")
-    if args.out.exists() and not args.out.is_dir():
-        raise ConfigError(f"{args.out}: exists and is not a folder")
+    require_finite(args.period, "--period", above=0.0)
+    check_writable_dir(args.out, "output folder")
     layers = [{"perception": {"flow": WHOLE_SCAN, "dt": args.period}, "odom": {"scan_period": args.period}}]
     layers += [read_yaml(args.config)] if args.config else []
     layers += [parse_overrides(args.param, "-p")]
@@ -151,11 +148,10 @@ def run_odom(args: argparse.Namespace) -> int:
     source = open_source(args.source, args.topic, args.period)
     odometry = make_odometry(config=config.odom)
     perceive = Perceiver(config.odom.method, config.perception, args.device)
-    print(f"{config.odom.method.value} odometry over {source.description}", file=sys.stderr, flush=True)
     steps = run_odometry(source, odometry, perceive, progress_bar(max(source.count - 1, 1)))
     written = write_outputs(args.out, steps, config, source)
     last = steps[-1].pose[:3, 3]
-    print(f"{len(steps)} poses, last at ({last[0]:.2f}, {last[1]:.2f}, {last[2]:.2f}) m -> "
+    print(f"{config.odom.method.value} odometry over {source.description}: {len(steps)} poses, last at ({last[0]:.2f}, {last[1]:.2f}, {last[2]:.2f}) m -> "
           + ", ".join(str(path) for path in written), file=sys.stderr)
     return 0
 
@@ -170,9 +166,15 @@ def run_eval(args: argparse.Namespace) -> int:
     from ssf_eval.odom.sequence import scenario_of, sim_scans
     from ssf_eval.results import write_result
 
+    from ssf_common.checks import require_finite, require_seed
+
     check_methods(args.methods)
     if args.frames < 2:
         raise ConfigError(f"--frames must be at least 2, got {args.frames}")
+    require_seed(args.seed)
+    require_finite(args.warmup, "--warmup", at_least=0.0)
+    if args.trail_every < 1:
+        raise ConfigError(f"--trail-every must be at least 1, got {args.trail_every}")
     for path, what in ((args.json, "result file"), (args.plot, "picture"), (args.map_plot, "picture")):
         if path is not None:
             check_writable(path, what)
@@ -227,6 +229,7 @@ def run_bench(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ssf_common.errors import ConfigError
+    from ssf_common.paths import check_writable
     from ssf_eval.odom.evaluate import KISS_ICP, KissIcpBaseline
     from ssf_eval.odom.sequence import scenario_of, sim_scans
     from ssf_eval.results import write_result
@@ -235,11 +238,14 @@ def run_bench(args: argparse.Namespace) -> int:
     check_methods(args.methods)
     if args.frames < 2:
         raise ConfigError(f"--frames must be at least 2, got {args.frames}")
+    if args.json is not None:
+        check_writable(args.json, "result file")
     config = odom_config(args)
+    scenario = scenario_of(args.scenario)
     perception = perception_for("noisy", args.seed)
     scans, inputs, truths = [], [], []
     print(f"computing flow and masks for {args.frames} scans of {args.scenario} ...", file=sys.stderr, flush=True)
-    for scan in sim_scans(scenario_of(args.scenario), args.seed, args.frames, 2.0):
+    for scan in sim_scans(scenario, args.seed, args.frames, 2.0):
         perceived = perception(scan)
         scans.append(scan.points)
         truths.append(scan.pose)

@@ -17,7 +17,6 @@ from ssf_common.errors import DataError
 from ssf_eval.pipeline import PerceptionConfig
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, OdomStep, Odometry
 
-SCAN_SUFFIXES = (".bin", ".pcd", ".ply", ".npy")
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 
 
@@ -48,17 +47,17 @@ def open_source(path: Path, topic: str | None = None, period_s: float = 0.1) -> 
 
 def folder_source(folder: Path, period_s: float) -> ScanSource:
     """Every scan file of a folder (or of its velodyne/ subfolder, as in a KITTI sequence), in name order."""
-    from ssf_common.scan_io import read_scan
+    from ssf_common import scans as scan_files
 
     if (folder / "velodyne").is_dir():
         folder = folder / "velodyne"
-    files = sorted(path for path in folder.iterdir() if path.suffix.lower() in SCAN_SUFFIXES)
+    files = sorted(path for path in folder.iterdir() if path.suffix.lower() in scan_files.SUFFIXES)
     if len(files) < 2:
-        raise DataError(f"{folder}: needs at least two scan files ({', '.join(SCAN_SUFFIXES)}), found {len(files)}")
+        raise DataError(f"{folder}: needs at least two scan files ({', '.join(scan_files.SUFFIXES)}), found {len(files)}")
 
     def scans() -> Iterator[tuple[int, np.ndarray]]:
         for index, file in enumerate(files):
-            yield int(round(index * period_s * 1e9)), read_scan(file)[:, :3]
+            yield int(round(index * period_s * 1e9)), scan_files.read_scan(file)[:, :3]
 
     return ScanSource(f"{len(files)} scans in {folder}", len(files), scans)
 
@@ -145,10 +144,6 @@ def write_outputs(out: Path, steps: list[OdomStep], config: OdomRunConfig, sourc
     from ssf_common.config import dump
     from ssf_common.dataset.kitti import write_poses, write_tum
 
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise DataError(f"{out}: cannot create the output folder ({err.strerror})") from None
     poses = np.stack([step.pose for step in steps])
     stamps = np.array([step.stamp_ns for step in steps], dtype=np.float64) * 1e-9
     write_poses(out / "poses_kitti.txt", poses)
