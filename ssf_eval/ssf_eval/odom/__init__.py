@@ -1,1 +1,2 @@
-"""`ssf eval odom` and `ssf bench odom`: the odometry variants and KISS-ICP on the same simulated scans."""
+"""`ssf odom run`, `ssf eval odom` and `ssf bench odom`: odometry over anyone's scans, and every variant and KISS-ICP on
+the same simulated scans."""

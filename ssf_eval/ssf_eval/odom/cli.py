@@ -1,4 +1,4 @@
-"""`ssf eval odom` and `ssf bench odom`."""
+"""`ssf odom run`, `ssf eval odom` and `ssf bench odom`."""
 
 from __future__ import annotations
 
