@@ -51,15 +51,18 @@ def greedy_farthest_indices(points: np.ndarray, count: int, start: int = 0) -> n
 
 
 def voxel_indices(points: np.ndarray, voxel: float) -> np.ndarray:
-    """One point (the first) per occupied voxel, indices sorted."""
+    """One point (the first) per occupied voxel (any number of coordinates), indices sorted."""
     points = np.asarray(points)
     if len(points) == 0:
         return np.zeros(0, dtype=np.int64)
-    columns = [np.floor(points[:, axis] / voxel).astype(np.int64) for axis in range(3)]  # column-wise: 2x faster
+    columns = [np.floor(points[:, axis] / voxel).astype(np.int64) for axis in range(points.shape[1])]  # 2x faster
     columns = [column - column.min() for column in columns]
-    span = [int(column.max()) + 1 for column in columns]
-    if float(span[0]) * span[1] * span[2] < 2.0 ** 62:  # one int64 code per voxel: a 1-D unique, several times faster
-        _, first = np.unique((columns[0] * span[1] + columns[1]) * span[2] + columns[2], return_index=True)
+    spans = [int(column.max()) + 1 for column in columns]
+    if float(np.prod(np.array(spans, dtype=np.float64))) < 2.0 ** 62:  # one int64 code per voxel: a 1-D unique
+        codes = np.zeros(len(points), dtype=np.int64)
+        for column, span in zip(columns, spans):
+            codes = codes * span + column
+        _, first = np.unique(codes, return_index=True)
     else:
         _, first = np.unique(np.stack(columns, axis=1), axis=0, return_index=True)
     return np.sort(first)
