@@ -136,7 +136,8 @@ class OdomNode(Node):
 
     def _step(self, _kind: str, frame: OdomInput) -> None:
         if self._last_stamp is not None and frame.stamp_ns <= self._last_stamp:
-            self.get_logger().warning(f"stamp {frame.stamp_ns} is not after the last scan's; dropped")
+            if frame.stamp_ns < self._last_stamp:  # the same scan again (a later fusion answer) is simply skipped
+                self.get_logger().warning(f"stamp {frame.stamp_ns} is older than the last scan's; dropped")
             return
         started = time.perf_counter()
         step = self.odometry.step(frame)
