@@ -39,14 +39,17 @@ def _register_graph_commands(groups: CommandGroups) -> None:
     demo = groups.top.add_parser(
         "demo",
         help="the main job: the closed loop in the simulator, recorded",
-        description="Run the whole graph (sim_bridge with its route follower, flow, segmentation, fusion, odometry, "
-        "planner) as node processes for --duration seconds of simulated driving, record every topic to MCAP, "
-        "and write the episode summary and a top-down picture to --out.",
+        description="Run the whole graph as node processes (sim_bridge -> flow ⇄ segmentation ⇄ fusion -> odometry -> "
+        "planner -> sim_bridge) for --duration seconds of simulated driving in lockstep, record every topic to MCAP, "
+        "and write the episode summary and a picture drawn from the recording to --out. The MPC planner drives on "
+        "SSF perception; --driver follow lets the simulator's built-in route follower drive instead.",
     )
     demo.add_argument("--scenario", default="urban_100", help="scenario name or YAML file (default urban_100)")
     demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated driving (default 20)")
     demo.add_argument("--seed", type=int, default=-1, help="scenario seed (default: the scenario's own)")
     demo.add_argument("--out", default=None, help="output folder (default bags/demo_<time>)")
+    demo.add_argument("--driver", choices=("planner", "follow"), default="planner",
+                      help="who drives: the MPC planner on SSF perception (default) or the built-in route follower")
     demo.add_argument("--video", metavar="FILE", default=None,
                       help="after the run, render a bird's-eye animation of the recording to FILE (.mp4 or .gif)")
     add_foxglove_options(demo)
@@ -83,7 +86,8 @@ def _demo(args: argparse.Namespace) -> int:
 
     out = Path(args.out) if args.out else Path("bags") / time.strftime("demo_%Y%m%d_%H%M%S")
     video = Path(args.video) if args.video else None
-    return run_demo(args.scenario, args.duration, out, args.seed, viewer=viewer_config(args, "ssf demo"), video=video)
+    return run_demo(args.scenario, args.duration, out, args.seed, viewer=viewer_config(args, "ssf demo"), video=video,
+                    driver=args.driver)
 
 
 def _register_bench_commands(groups: CommandGroups) -> None:

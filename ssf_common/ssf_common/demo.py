@@ -19,7 +19,9 @@ from ssf_common.paths import check_writable_dir
 from ssf_common.viewer.command import with_viewer
 from ssf_common.viewer.server import ViewerConfig
 
-RECORDED_TOPICS = ("/lidar/points", "/clock", "/sim/episode", "/ssf/flow")  # what a healthy run must hold
+# what a healthy run must hold: every stage of the loop answered at least once
+RECORDED_TOPICS = ("/lidar/points", "/clock", "/sim/episode", "/ssf/flow", "/ssf/mask", "/ssf/semantic_flow",
+                   "/ssf/obstacles", "/odom", "/ssf/plan", "/cmd_vel")
 SCENARIO_LOADERS = "ssf.scenarios"  # entry points: load_scenario(name_or_path) of the installed simulator
 
 
@@ -50,7 +52,7 @@ class DemoPaths:
         return self.out / "graph.yaml"
 
 
-def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int) -> GraphSpec:
+def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, driver: str = "planner") -> GraphSpec:
     """The shipped demo graph with this run's scenario, duration and output paths filled in (the episode picture is
     drawn from the recording afterwards, see `draw_episode`)."""
     graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
@@ -65,6 +67,7 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int) ->
                 "seed": seed,
                 "duration_s": duration_s,
                 "summary": str(paths.summary),
+                "driver": "none" if driver == "planner" else "follow",
             }
             node = node.model_copy(update={"parameters": parameters})
         nodes.append(node)
@@ -88,17 +91,19 @@ def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: 
 
 
 def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1, *, viewer: ViewerConfig | None = None,
-             video: Path | None = None) -> int:
+             video: Path | None = None, driver: str = "planner") -> int:
     """Run the graph until the episode ends (served live to Foxglove with a viewer config); draw the episode from its
     recording (and animate it to `video`); print where everything is, or what went wrong (exit 1)."""
     check_inputs(scenario, duration_s, out, seed, video)
     paths = DemoPaths(out)
-    graph = with_viewer(demo_graph(paths, scenario, duration_s, seed), viewer)
+    graph = with_viewer(demo_graph(paths, scenario, duration_s, seed, driver), viewer)
     try:
         paths.graph.write_text(config_lib.dump(graph))
     except OSError as err:
         raise DataError(f"{paths.graph}: cannot write ({err.strerror})") from None
-    print(f"demo: scenario {scenario}, {duration_s:g} s of simulated driving, results in {paths.out}", file=sys.stderr)
+    who = "the MPC planner on SSF perception" if driver == "planner" else "the built-in route follower"
+    print(f"demo: scenario {scenario}, {duration_s:g} s of simulated driving by {who}, results in {paths.out}",
+          file=sys.stderr)
     start = time.monotonic()
     launcher = Launcher(graph, output=sys.stderr)
     launcher.run()

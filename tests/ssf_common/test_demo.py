@@ -68,7 +68,19 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
         scans = [messages.stamp_ns(bag.decode(m).header.stamp) for m in bag.messages(["/lidar/points"])]
         episode = [bag.decode(m) for m in bag.messages(["/sim/episode"])]
         flow = [bag.decode(m) for m in bag.messages(["/ssf/flow"])]
+        semantic = [bag.decode(m) for m in bag.messages(["/ssf/semantic_flow"])]
+        commands = [bag.decode(m) for m in bag.messages(["/cmd_vel"])]
+        truth = [bag.decode(m) for m in bag.messages(["/sim/ground_truth/odom"])]
+        odometry = [bag.decode(m) for m in bag.messages(["/odom"])]
     assert scans == sorted(set(scans)) and all(stamp % 100_000_000 == 0 for stamp in scans)
+    # the whole loop closed: each stage answered most scans, and the planner's commands moved the car
+    assert len(semantic) >= STEPS // 2 and len(odometry) >= STEPS // 2 and len(commands) >= STEPS // 2
+    assert max(command.linear.x for command in commands) > 1.0
+    start, end = truth[0].pose.pose.position, truth[-1].pose.pose.position
+    driven = ((end.x - start.x) ** 2 + (end.y - start.y) ** 2) ** 0.5
+    assert driven > 1.0
+    last = odometry[-1].pose.pose.position  # odometry starts at the first scan: it measures the distance driven
+    assert abs((last.x ** 2 + last.y ** 2) ** 0.5 - driven) < 0.5 * driven
     assert scans[-1] == STEPS * 100_000_000
     assert episode[-1].scenario == "urban_100" and abs(episode[-1].time - DURATION_S) < 1e-9
     assert {messages.stamp_ns(f.header.stamp) for f in flow} <= set(scans)  # flow answers recorded scans
