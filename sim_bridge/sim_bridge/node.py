@@ -12,6 +12,7 @@ from sim_bridge import ros_messages
 from sim_bridge.ego import VelocityCommand
 from sim_bridge.scenario import load_scenario, overrides_from_pairs
 from sim_bridge.simulator import Frame, Simulator, episode_summary
+from ssf_common.diagnostics import StageStats, advertise
 from ssf_common import topics
 from ssf_common.checks import SEED_MAX
 from ssf_common.config import Section
@@ -73,6 +74,7 @@ class SimBridgeNode(Node):
         self.fresh_command = False
         self.published_at = 0.0
         self.step_ms: list[float] = []
+        self.stats = StageStats(self.get_name())
         self.finished = False
         self.exit_code = 0
         self.summary: dict[str, Any] | None = None
@@ -93,6 +95,7 @@ class SimBridgeNode(Node):
         first = self.sim.reset()
         self.pub_route.publish(ros_messages.route_path(self.sim.route_waypoints(), first.base_pose, first.stamp_ns))
         self.create_timer(self._tick_period(), self.tick)
+        advertise(self, self.stats)
         self.get_logger().info(
             f"scenario '{self.config.scenario}' seed {self.sim.seed}: {scenario.agents.count} agents, "
             f"route {self.sim.world.route_length:.0f} m, {self.config.mode.value}, driver {self.config.driver.value}"
@@ -123,6 +126,8 @@ class SimBridgeNode(Node):
             waited = time.monotonic() - self.published_at
             if not self.fresh_command and waited < self.config.command_timeout_s:
                 return
+            if not self.fresh_command:
+                self.stats.count("command_timeouts")
         frame = self.sim.frame
         command = self.command
         if self.follower is not None:
@@ -132,6 +137,7 @@ class SimBridgeNode(Node):
         previous = frame
         frame = self.sim.step(command)
         self.step_ms.append((time.perf_counter() - start) * 1e3)
+        self.stats.record(self.step_ms[-1], "steps")
         self._publish(frame, previous)
         if self.sim.done or frame.status.time >= self.time_limit - 1e-9:
             self._finish(frame)

@@ -102,9 +102,11 @@ def _register_bench_commands(groups: CommandGroups) -> None:
     transport.add_argument("--duration", type=float, default=20.0, help="seconds per cloud size (default 20)")
     transport.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
     transport.set_defaults(func=_bench_transport)
+    from ssf_common import bench_graph
     from ssf_common.viewer import bench as view_bench
 
     view_bench.add_parser(groups.bench)
+    bench_graph.add_parser(groups.bench)
 
 
 def _bench_transport(args: argparse.Namespace) -> int:

@@ -21,3 +21,4 @@ EPISODE = "/sim/episode"
 MARKERS = "/sim/markers"
 SSF_MARKERS = "/ssf/markers"  # perceived obstacles, their velocity arrows and the plan (visualization_msgs/MarkerArray)
 ROUTE = "/sim/route"  # the route A -> B in the odometry frame (latched nav_msgs/Path)
+DIAGNOSTICS = "/diagnostics"

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 
 from ssf_common import messages, topics
+from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import mask_from_cloud, scene_flow_to_cloud
 from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
@@ -56,6 +57,8 @@ class FlowNode(Node):
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, self.on_mask_hint, QOS_DEFAULT)
         self.create_timer(report_period, self._report)
         self._compute_ms: list[float] = []
+        self.stats = StageStats(self.get_name())
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
         self.get_logger().info(f"estimator '{self.config.estimator}' on {device}")
 
     def on_scan(self, msg: Any) -> None:
@@ -96,6 +99,7 @@ class FlowNode(Node):
         start = time.perf_counter()
         result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, job.mask)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
+        self.stats.record(self._compute_ms[-1], "estimates")
         flow = SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz, result.flow, job.iteration)
         self.flow_pub.publish(scene_flow_to_cloud(flow))
 

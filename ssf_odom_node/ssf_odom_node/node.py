@@ -12,6 +12,7 @@ from pydantic import Field
 
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import Section
+from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg, scene_flow_from_cloud,
                                     semantic_flow_from_cloud)
 from ssf_common.errors import ConfigError, MessageError, SsfError
@@ -79,6 +80,8 @@ class OdomNode(Node):
         self.map_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MAP, QOS_DEFAULT)
         self.worker = LatestWorker(self._step, ("scan",), self.get_logger(), "odom")
         self._compute_ms: list[float] = []
+        self.stats = StageStats(self.get_name())
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
         self._last_stamp: int | None = None
         self.create_timer(self.wiring.map_period_s, self._publish_map)
         self.create_timer(self.wiring.report_period_s, self._report)
@@ -142,6 +145,7 @@ class OdomNode(Node):
         started = time.perf_counter()
         step = self.odometry.step(frame)
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
+        self.stats.record(self._compute_ms[-1], "steps")
         self._last_stamp = frame.stamp_ns
         estimate = to_base(step, self.mount, self.wiring.odom_frame, self.wiring.base_frame)
         self.odom_pub.publish(odometry_to_msg(estimate))

@@ -12,7 +12,9 @@ import numpy as np
 
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.conversions import obstacles_from_msg, odometry_from_msg, plan_from_msg, plan_to_msg
+from ssf_common.diagnostics import StageStats, advertise
 from ssf_common.errors import ConfigError, MessageError, SsfError
+from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles, OdometryEstimate
@@ -49,6 +51,10 @@ class PlannerNode(Node):
         self.said: set[str] = set()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
+        self.markers = MarkerSet()
+        self.marker_pub = self.create_publisher("visualization_msgs/msg/MarkerArray", topics.SSF_MARKERS, QOS_DEFAULT)
+        self.stats = StageStats(self.get_name())
+        advertise(self, self.stats, refresh=self._refresh)
         self.create_timer(self.config.control_period, self.watchdog)
         self.create_timer(report_period, self._report)
         source = "parameter route_waypoints" if self.planner.route is not None else route_topic
@@ -106,6 +112,8 @@ class PlannerNode(Node):
         step = self.planner.step(state, obstacles, stale=stale)
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
+        self.marker_pub.publish(self.markers.plan(step.plan))
+        self.stats.record(step.solve_ms, "ticks")
         if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
             self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
 
@@ -163,6 +171,9 @@ class PlannerNode(Node):
         elif not condition and topic in self.said:
             self.said.discard(topic)
             self.get_logger().info(f"{topic} fresh again")
+
+    def _refresh(self) -> None:
+        self.stats.set("fallbacks", self.planner.stats.fallbacks)
 
     def _report(self) -> None:
         stats = self.planner.stats

@@ -13,6 +13,7 @@ from pydantic import Field
 from ssf_common import messages, topics
 from ssf_common.config import Section
 from ssf_common.conversions import mask_from_cloud, mask_to_cloud, obstacles_to_msg, scene_flow_from_cloud, semantic_flow_to_cloud
+from ssf_common.diagnostics import StageStats, advertise
 from ssf_common.errors import MessageError
 from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.markers import MarkerSet
@@ -38,6 +39,8 @@ class FusionNode(Node):
         self.config = self.declare_config(FusionNodeConfig)
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.loop = DistributedLoop(self.config.fusion, self.config.timeout_s)
+        self.stats = StageStats(self.get_name())
+        advertise(self, self.stats, refresh=self._refresh)
         self.dt = self.config.dt
         self.last_flow_stamp: int | None = None
         self.hint_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, QOS_DEFAULT)
@@ -72,12 +75,15 @@ class FusionNode(Node):
         except MessageError as err:
             self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
             return
+        started = time.perf_counter()
         decision = self.loop.on_mask(mask, time.monotonic())
         if isinstance(decision, Continue):
             self._publish_state(decision.status)
             self.hint_pub.publish(mask_to_cloud(decision.hint))
+            self.stats.record((time.perf_counter() - started) * 1e3, "iterations")
         elif isinstance(decision, Finish):
             self._publish_result(decision)
+            self.stats.record((time.perf_counter() - started) * 1e3, "iterations")
 
     def on_timer(self) -> None:
         """Finish a scan that has waited too long."""
@@ -101,6 +107,10 @@ class FusionNode(Node):
             delta_total=float(status.delta_total), delta_flow=float(status.delta_flow),
             delta_mask=float(status.delta_mask), converged=bool(status.converged), num_points=status.num_points,
             num_static=status.num_static, num_clusters=status.num_clusters))
+
+    def _refresh(self) -> None:
+        for reason, count in self.loop.finished.items():
+            self.stats.set(f"finished_{reason}", count)
 
     def _report(self) -> None:
         counts = ", ".join(f"{reason} {count}" for reason, count in self.loop.finished.items())

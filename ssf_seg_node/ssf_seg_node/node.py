@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from ssf_common import topics
+from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import mask_to_cloud, scene_flow_from_cloud
 from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, Node, run
@@ -34,6 +35,8 @@ class SegNode(Node):
         self.mask_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MASK, QOS_DEFAULT)
         self.worker = LatestWorker(self._segment, ("flow",), self.get_logger(), "seg")
         self._compute_ms: list[float] = []
+        self.stats = StageStats(self.get_name())
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
         self.create_timer(report_period, self._report)
         self.get_logger().info(f"segmenter '{self.segmenter.name}' on {device}")
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
@@ -54,6 +57,7 @@ class SegNode(Node):
         started = time.perf_counter()
         result = self.segmenter.segment(flow.points, flow.flow, prior)
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
+        self.stats.record(self._compute_ms[-1], "segmentations")
         seg = result.segmentation
         self._remember(flow.stamp_ns, seg.dynamic_prob)
         self.mask_pub.publish(mask_to_cloud(MotionMask(flow.stamp_ns, flow.frame_id, flow.points, seg.dynamic_prob,

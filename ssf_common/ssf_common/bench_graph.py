@@ -1,0 +1,260 @@
+"""`ssf bench graph`: the whole graph in real time, every node its own process, measured from the outside.
+
+The simulator steps every 0.1 s of wall time whatever the stages do (real time, as a vehicle would); a probe node
+records when scans, odometry and commands appear, every node's /diagnostics, and psutil samples each process."""
+
+from __future__ import annotations
+
+import argparse
+import io
+import sys
+import threading
+import time
+from dataclasses import asdict, dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ssf_common import messages, topics
+from ssf_common.diagnostics import read_status
+from ssf_common.launch import GraphSpec, Launcher, load_graph
+
+SAMPLE_PERIOD_S = 1.0
+WARMUP_S = 5.0  # the first seconds (imports, discovery, the first scans) are not counted
+
+
+@dataclass
+class NodeRow:
+    """One node's figures over the measured window."""
+
+    node: str
+    processing_ms_median: float | None
+    processing_ms_p95: float | None
+    answered: int
+    dropped: int
+    cpu_share: float  # of one core, mean over the window
+    rss_mb: float  # at the end
+    rss_slope_mb_per_10min: float
+
+
+@dataclass
+class GraphBench:
+    """The graph's end-to-end figures and one row per node (the JSON keys of `ssf bench graph`)."""
+
+    duration_s: float
+    scenario: str
+    scans: int
+    cmd_vel_rate_hz: float
+    latency_p50_ms: float | None
+    latency_p95_ms: float | None
+    scans_dropped_ratio: float
+    nodes: list[NodeRow] = field(default_factory=list)
+
+
+class Probe:
+    """Listens to the graph: wall time of each /clock stamp, scans, odometry, commands, diagnostics."""
+
+    def __init__(self) -> None:
+        from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node
+
+        self.node = Node("ssf_bench_probe")
+        self.lock = threading.Lock()
+        self.clock_wall: dict[int, float] = {}
+        self.scans: list[tuple[float, int]] = []
+        self.odometry: list[tuple[float, int]] = []
+        self.commands: list[float] = []
+        self.diagnostics: dict[str, dict[str, float]] = {}
+        self.node.create_subscription("rosgraph_msgs/msg/Clock", topics.CLOCK, self.on_clock, QOS_DEFAULT)
+        self.node.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA,
+                                      raw=True)
+        self.node.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
+        self.node.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_command, QOS_DEFAULT)
+        self.node.create_subscription("diagnostic_msgs/msg/DiagnosticArray", topics.DIAGNOSTICS, self.on_diagnostics,
+                                      QOS_DEFAULT)
+        self.node.spin_in_thread()
+
+    def on_clock(self, msg: Any) -> None:
+        with self.lock:
+            self.clock_wall.setdefault(messages.stamp_ns(msg.clock), time.monotonic())
+
+    def on_scan(self, cdr: bytes) -> None:
+        sec, nanosec = np.frombuffer(bytes(cdr[4:12]), dtype="<i4", count=2)  # CDR header, then std_msgs/Header
+        with self.lock:
+            self.scans.append((time.monotonic(), int(sec) * 1_000_000_000 + int(np.uint32(nanosec))))
+
+    def on_odometry(self, msg: Any) -> None:
+        with self.lock:
+            self.odometry.append((time.monotonic(), messages.stamp_ns(msg.header.stamp)))
+
+    def on_command(self, _msg: Any) -> None:
+        with self.lock:
+            self.commands.append(time.monotonic())
+
+    def on_diagnostics(self, msg: Any) -> None:
+        with self.lock:
+            self.diagnostics.update(read_status(msg))
+
+    def close(self) -> None:
+        self.node.destroy_node()
+
+
+def bench_graph_spec(scenario: str) -> GraphSpec:
+    """The demo graph without its recorder, the simulator in real time driven by the planner."""
+    graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    nodes = []
+    for node in graph.nodes:
+        if node.executable == "ssf":
+            continue
+        if node.executable == "sim_bridge":
+            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": "realtime",
+                                                          "driver": "none", "duration_s": 0.0}})
+        nodes.append(node)
+    return graph.model_copy(update={"nodes": nodes})
+
+
+def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, float, float]]], stop: threading.Event) -> None:
+    """Every second: (time, CPU % of one core, RSS MB) of each node process."""
+    import psutil
+
+    handles: dict[str, psutil.Process] = {}
+    while not stop.wait(SAMPLE_PERIOD_S):
+        for managed in launcher.managed:
+            if managed.process is None or managed.process.poll() is not None:
+                continue
+            try:
+                handle = handles.get(managed.label)
+                if handle is None or handle.pid != managed.process.pid:
+                    handle = handles[managed.label] = psutil.Process(managed.process.pid)
+                    handle.cpu_percent(None)
+                    continue
+                samples.setdefault(managed.label, []).append(
+                    (time.monotonic(), handle.cpu_percent(None), handle.memory_info().rss / 2**20))
+            except psutil.Error:
+                continue
+
+
+def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
+    """Scan stamp -> the /cmd_vel that answers it: each command answers the newest odometry before it, whose stamp is
+    the scan's; the scan's time is when /clock showed that stamp."""
+    answered: set[int] = set()
+    latency: list[float] = []
+    odometry = sorted(probe.odometry)
+    index = -1
+    for wall in sorted(probe.commands):
+        while index + 1 < len(odometry) and odometry[index + 1][0] <= wall:
+            index += 1
+        if index < 0 or wall < since:
+            continue
+        stamp = odometry[index][1]
+        if stamp in answered or stamp not in probe.clock_wall:
+            continue
+        answered.add(stamp)
+        latency.append((wall - probe.clock_wall[stamp]) * 1e3)
+    return latency, answered
+
+
+def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]], since: float) -> list[NodeRow]:
+    """One row per node: its diagnostics, CPU share and memory over the window."""
+    rows = []
+    for label, series in sorted(samples.items()):
+        window = [(t, cpu, rss) for t, cpu, rss in series if t >= since]
+        if not window:
+            continue
+        times, cpu, rss = (np.array(column) for column in zip(*window))
+        slope = float(np.polyfit(times, rss, 1)[0] * 600.0) if len(times) > 2 else 0.0
+        numbers = probe.diagnostics.get(label, {})
+        answered = int(sum(value for key, value in numbers.items() if key.endswith("_answered"))) or int(
+            sum(value for key, value in numbers.items() if key in ("estimates", "segmentations", "steps", "ticks",
+                                                                   "iterations")))
+        dropped = int(sum(value for key, value in numbers.items() if key.endswith("_dropped")))
+        rows.append(NodeRow(label, numbers.get("processing_ms_median"), numbers.get("processing_ms_p95"), answered,
+                            dropped, float(cpu.mean() / 100.0), float(rss[-1]), slope))
+    return rows
+
+
+def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None) -> GraphBench:
+    """Start the graph, measure for duration_s after the warm-up, stop it, compute the figures."""
+    graph = bench_graph_spec(scenario)
+    launcher = Launcher(graph, output=log or io.StringIO())
+    probe = Probe()
+    samples: dict[str, list[tuple[float, float, float]]] = {}
+    stop = threading.Event()
+    sampler = threading.Thread(target=sample_processes, args=(launcher, samples, stop), daemon=True)
+    started = time.monotonic()
+    try:
+        launcher.start()
+        sampler.start()
+        deadline = started + WARMUP_S + duration_s
+        while time.monotonic() < deadline:
+            if not launcher.poll():
+                break
+            time.sleep(0.2)
+    finally:
+        stop.set()
+        launcher.stop()
+        probe.close()
+    window_start = started + WARMUP_S
+    measured = max(min(time.monotonic(), started + WARMUP_S + duration_s) - window_start, 1e-9)
+    with probe.lock:
+        scans = [stamp for wall, stamp in probe.scans if wall >= window_start]
+        commands = [wall for wall in probe.commands if wall >= window_start]
+        latency, answered = latencies_ms(probe, window_start)
+    answered_scans = len(answered & set(scans))
+    return GraphBench(
+        duration_s=round(measured, 2), scenario=scenario, scans=len(scans),
+        cmd_vel_rate_hz=len(commands) / measured,
+        latency_p50_ms=float(np.percentile(latency, 50)) if latency else None,
+        latency_p95_ms=float(np.percentile(latency, 95)) if latency else None,
+        scans_dropped_ratio=1.0 - answered_scans / len(scans) if scans else 1.0,
+        nodes=node_rows(probe, samples, window_start))
+
+
+def format_bench(bench: GraphBench) -> str:
+    """The figures as text: end to end, then per node."""
+    p50 = f"{bench.latency_p50_ms:.0f}" if bench.latency_p50_ms is not None else "-"
+    p95 = f"{bench.latency_p95_ms:.0f}" if bench.latency_p95_ms is not None else "-"
+    lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
+             f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %",
+             f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'RSS MB':>7} {'MB/10min':>9}"]
+    for row in bench.nodes:
+        median = f"{row.processing_ms_median:7.1f}" if row.processing_ms_median is not None else f"{'-':>7}"
+        p95_row = f"{row.processing_ms_p95:7.1f}" if row.processing_ms_p95 is not None else f"{'-':>7}"
+        lines.append(f"{row.node:<18} {median} {p95_row} {row.answered:9d} {row.dropped:8d} {100 * row.cpu_share:5.0f}% "
+                     f"{row.rss_mb:7.0f} {row.rss_slope_mb_per_10min:9.2f}")
+    return "\n".join(lines)
+
+
+def bench_command(args: argparse.Namespace) -> int:
+    """ssf bench graph."""
+    from ssf_common.checks import require_finite
+    from ssf_common.jsonio import write_json
+    from ssf_common.paths import check_writable
+
+    duration = require_finite(args.duration, "--duration", above=0.0)
+    if args.json:
+        check_writable(args.json, "result file")
+    print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
+          file=sys.stderr)
+    bench = run_bench(duration, args.scenario, sys.stderr if args.verbose else None)
+    print(format_bench(bench))
+    if args.json:
+        write_json(args.json, asdict(bench))
+    return 0
+
+
+def add_parser(bench_commands: argparse._SubParsersAction) -> None:
+    """`ssf bench graph`."""
+    parser = bench_commands.add_parser(
+        "graph", help="the whole graph in real time: per-node time, drops, CPU, RSS; scan -> /cmd_vel latency and rate",
+        description="Runs the full graph (the simulator in real time at 10 Hz, driven by the planner; every node its "
+        "own process) and reports, after a warm-up, each node's processing time (median, p95, from /diagnostics), "
+        "inputs answered and dropped, CPU share of one core and RSS (with its slope), and end to end the latency from "
+        "a scan's stamp to the /cmd_vel that answers it (p50, p95), the /cmd_vel rate and the share of scans "
+        "never answered.")
+    parser.add_argument("--duration", type=float, default=60.0, help="measured seconds after the warm-up (default 60)")
+    parser.add_argument("--scenario", default="urban_200", help="scenario (default urban_200)")
+    parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--verbose", action="store_true", help="show the nodes' output")
+    parser.set_defaults(func=bench_command)

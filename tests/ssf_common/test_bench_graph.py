@@ -1,0 +1,60 @@
+"""`ssf bench graph`'s arithmetic on a scripted probe, and /diagnostics from a node's StageStats."""
+
+from __future__ import annotations
+
+import threading
+
+import pytest
+
+from ssf_common import messages
+from ssf_common.bench_graph import bench_graph_spec, latencies_ms, node_rows
+from ssf_common.diagnostics import StageStats, read_status
+
+
+class ScriptedProbe:
+    """What Probe records, written by hand."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.clock_wall = {100: 10.0, 200: 10.1, 300: 10.2, 400: 10.3}
+        self.scans = [(10.0, 100), (10.1, 200), (10.2, 300), (10.3, 400)]
+        self.odometry = [(10.25, 100), (10.45, 300)]  # scan 200 and 400 never answered
+        self.commands = [10.27, 10.29, 10.5]  # the second command answers scan 100 again: counted once
+        self.diagnostics = {"ssf_flow_node": {"scan_answered": 3, "hint_answered": 2, "scan_dropped": 1,
+                                              "processing_ms_median": 40.0, "processing_ms_p95": 55.0}}
+
+
+def test_latency_is_measured_from_the_scans_clock_time_to_the_answering_command():
+    latency, answered = latencies_ms(ScriptedProbe(), since=0.0)
+    assert answered == {100, 300}
+    assert latency == pytest.approx([270.0, 300.0])
+    assert latencies_ms(ScriptedProbe(), since=10.4)[1] == {300}  # the warm-up is left out
+
+
+def test_node_rows_combine_diagnostics_and_process_samples():
+    samples = {"ssf_flow_node": [(1.0, 50.0, 100.0), (11.0, 70.0, 101.0), (21.0, 90.0, 102.0), (601.0, 70.0, 110.0)]}
+    [row] = node_rows(ScriptedProbe(), samples, since=5.0)
+    assert row.answered == 5 and row.dropped == 1 and row.processing_ms_median == 40.0
+    assert row.cpu_share == pytest.approx(0.7666, abs=1e-3) and row.rss_mb == 110.0
+    assert row.rss_slope_mb_per_10min == pytest.approx(9.0 / 590.0 * 600.0, rel=0.05)
+
+
+def test_stage_stats_travel_as_diagnostics():
+    stats = StageStats("ssf_seg_node")
+    for ms in (10.0, 20.0, 30.0):
+        stats.record(ms, "segmentations")
+    stats.set("flow_dropped", 4)
+    msg = messages.deserialize(messages.serialize(stats.message(5), "diagnostic_msgs/msg/DiagnosticArray"),
+                               "diagnostic_msgs/msg/DiagnosticArray")
+    numbers = read_status(msg)["ssf_seg_node"]
+    assert numbers["segmentations"] == 3 and numbers["flow_dropped"] == 4 and numbers["processing_ms_median"] == 20.0
+    assert "median 20.0 ms" in msg.status[0].message
+
+
+def test_the_bench_graph_is_the_demo_graph_in_real_time():
+    graph = bench_graph_spec("urban_200")
+    executables = [node.executable for node in graph.nodes]
+    assert "ssf" not in executables  # no recorder
+    assert {"sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_fusion_node", "ssf_odom_node", "ssf_planner_node"} <= set(executables)
+    sim = next(node for node in graph.nodes if node.executable == "sim_bridge")
+    assert sim.parameters["mode"] == "realtime" and sim.parameters["driver"] == "none"
