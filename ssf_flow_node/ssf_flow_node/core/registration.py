@@ -49,23 +49,27 @@ class ScanMatcher:
         normals = np.asarray(self.target.normals)
         return normals if len(normals) else np.zeros((len(self.target.points), 3))
 
-    def coarse(self, source: np.ndarray, initial: np.ndarray | None = None) -> np.ndarray:
+    def coarse(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False) -> np.ndarray:
         """Transform T (4x4) that roughly maps source points onto the target surfaces, from far away."""
         transform = np.eye(4) if initial is None else initial
         for distance in self.config.max_distances:
-            transform = self.icp(source, transform, self.config.source_points, distance, self.config.iterations)
+            transform = self.icp(source, transform, self.config.source_points, distance, self.config.iterations, ordered)
         return transform
 
-    def refine(self, source: np.ndarray, initial: np.ndarray) -> np.ndarray:
+    def refine(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> np.ndarray:
         """Transform T (4x4) near `initial` that maps source points accurately onto the target surfaces."""
         return self.icp(source, initial, self.config.refine_points, self.config.refine_distance,
-                        self.config.refine_iterations)
+                        self.config.refine_iterations, ordered)
 
-    def align(self, source: np.ndarray, initial: np.ndarray | None = None) -> np.ndarray:
-        """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers."""
-        return self.refine(source, self.coarse(source, initial))
+    def align(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False) -> np.ndarray:
+        """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers.
 
-    def icp(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int) -> np.ndarray:
+        ordered: the source is already in random order and each stage uses its first points, so that leaving a few
+        points out (a motion mask) keeps the others' subsets, and the answer moves only as much as those points weigh."""
+        return self.refine(source, self.coarse(source, initial, ordered), ordered)
+
+    def icp(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int,
+            ordered: bool = False) -> np.ndarray:
         """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points."""
         import open3d as o3d
 
@@ -73,7 +77,8 @@ class ScanMatcher:
         if source.shape[0] < 10 or not self.usable:
             return transform
         if source.shape[0] > points:
-            source = source[np.random.default_rng(self.config.seed).choice(source.shape[0], points, replace=False)]
+            source = source[:points] if ordered else source[
+                np.random.default_rng(self.config.seed).choice(source.shape[0], points, replace=False)]
         pipelines = o3d.pipelines.registration
         result = pipelines.registration_icp(
             to_cloud(source), self.target, distance, transform,
