@@ -252,23 +252,25 @@ class Fit(NamedTuple):
     """How well scan t+1 explains each cluster under one motion hypothesis."""
 
     residual: np.ndarray  # mean distance to the same component in scan t+1, each capped at residual_cap (m)
-    plane: np.ndarray  # mean distance to its surfaces (along their normals), capped the same way (m)
-    unexplained: np.ndarray  # share of points farther than inlier_gate from it
+    plane: np.ndarray  # mean distance to its surfaces (along their normals) over the points near them (m)
+    unexplained: np.ndarray  # share of points not near it, or farther than inlier_gate from its surfaces
 
 
 def surface_distance(moved: np.ndarray, tree: cKDTree, points2: np.ndarray, normals2: np.ndarray | None, cap: float,
                      allowed: np.ndarray | None = None, labels2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Per point, the distance to the nearest point of scan t+1 and to its surface (along the normal there), both
-    capped; `allowed`: the component each point must land on (labels2: the components of scan t+1)."""
+    """Per point, the distance to the nearest point of scan t+1 (capped) and to its surface along the normal there
+    (NaN where no point lies within the cap); `allowed`: the component each point must land on (labels2: the
+    components of scan t+1)."""
     gap, index = tree.query(moved, distance_upper_bound=cap)
     hit = np.isfinite(gap)
     if allowed is not None:
         hit[hit] = labels2[index[hit]] == allowed[hit]
     point = np.where(hit, gap, cap)
+    plane = np.full(len(moved), np.nan)
     if normals2 is None:
-        return point, point
-    plane = np.full(len(moved), cap)
-    plane[hit] = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
+        plane[hit] = gap[hit]
+    else:
+        plane[hit] = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
     return point, plane
 
 
@@ -278,9 +280,11 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
     """Per label, residuals and unexplained share of its moved points against their component in scan t+1
     (`allowed`: each point's component)."""
     point, plane = surface_distance(moved, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    near = np.isfinite(plane)
     sizes = np.maximum(np.bincount(labels, minlength=count), 1)
-    return Fit(np.bincount(labels, point, count) / sizes, np.bincount(labels, plane, count) / sizes,
-               np.bincount(labels, point > config.inlier_gate, count) / sizes)
+    return Fit(np.bincount(labels, point, count) / sizes,
+               label_means(np.where(near, plane, 0.0), labels, count, near.astype(np.float64)),
+               np.bincount(labels, ~near | (np.where(near, plane, 0.0) > config.inlier_gate), count) / sizes)
 
 
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
@@ -328,9 +332,12 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     fit_static = fit_quality(lifted, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
-    misfit = believed | (fit_static.plane > config.surface_noise * noise)  # standing still misses the surfaces
-    explains = misfit & ((fit_moving.plane < keep * fit_static.plane) | (fit_moving.residual < keep * fit_static.residual)
-                         | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
+    floor = max(config.surface_noise * noise, 0.5 * config.min_speed * config.dt)
+    misfit = fit_static.plane > floor  # standing still misses the surfaces it lies near
+    no_worse = fit_moving.plane <= np.maximum(fit_static.plane, floor)
+    explains = no_worse & ((misfit & ((fit_moving.plane < keep * fit_static.plane)
+                                      | (fit_moving.residual < keep * fit_static.residual)))
+                           | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
     moving = active & (speed > config.min_speed) & explains
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving)
@@ -343,11 +350,14 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
     tree = cKDTree(points2)
     _, still = surface_distance(points1, tree, points2, normals2, config.residual_cap,
                                 clusters.parent[clusters.labels1], clusters.labels2)
-    noise = float(np.median(still)) if still.size else 0.0
+    near = np.isfinite(still)
+    noise = float(np.median(still[near])) if near.any() else 0.0
+    floor = max(config.surface_noise * noise, 0.5 * config.min_speed * config.dt)
+    still = np.where(near, still, 0.0)  # points with nothing near them say nothing
     motions = cluster_motions(points1, points2, clusters, config, belief, normals2, noise, tree)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
-    changed = still > max(config.surface_noise * noise, 0.5 * config.min_speed * config.dt)
+    changed = still > floor
     changed_clusters = label_counts(clusters.labels1[changed], clusters.count) >= config.min_cluster_points
     components = np.unique(clusters.parent[changed_clusters & ~motions.moving])
     if components.size == 0:
@@ -364,7 +374,7 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
                      np.concatenate([clusters.parent, pieces.parent + component_offset]))
     # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
     fresh = (np.arange(split.count) >= offset) & (
-        label_means(still, split.labels1, split.count) > config.surface_noise * noise)
+        label_means(still, split.labels1, split.count, near.astype(np.float64)) > floor)
     more = cluster_motions(points1, points2, split, config, belief, normals2, noise, tree, candidates=fresh)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
@@ -387,8 +397,10 @@ def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarr
     moved = yaw_translate(points[near], motions.yaw[cluster], motions.translation[cluster])
     tree = cKDTree(points2)
     normals = normals2 if len(normals2) == len(points2) and config.plane else None
-    _, still = surface_distance(points[near], tree, points2, normals, config.residual_cap)
-    _, carried = surface_distance(moved, tree, points2, normals, config.residual_cap)
+    still = np.nan_to_num(surface_distance(points[near], tree, points2, normals, config.residual_cap)[1],
+                          nan=config.residual_cap)
+    carried = np.nan_to_num(surface_distance(moved, tree, points2, normals, config.residual_cap)[1],
+                            nan=config.residual_cap)
     better = (carried < (1.0 - config.min_gain) * still) & (still - carried > 0.5 * config.min_speed * config.dt)
     attached[near[better]] = cluster[better]
     return attached

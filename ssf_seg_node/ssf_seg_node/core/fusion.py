@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.geometry.neighbours import nearest
 from ssf_common.records import MotionMask, SceneFlow, Segmentation, SemanticFlow
 from ssf_seg_node.core.base import Segmenter
 
@@ -21,7 +22,10 @@ class FusionConfig(Section):
     alpha: float = Field(1.0, ge=0.0, description="weight of the flow change in Delta_total")
     beta: float = Field(1.0, ge=0.0, description="weight of the mask change in Delta_total")
     epsilon: float = Field(1e-3, gt=0.0, description="the loop has converged when Delta_total falls below this")
-    max_iterations: int = Field(5, ge=1, description="N_iter: flow estimates at most (iteration 0 has no mask)")
+    max_iterations: int = Field(5, ge=1, description="N_iter: flow estimates at most")
+    prior_radius: float = Field(1.0, ge=0.0, description="temporal prior M^(0): each point of a scan takes the dynamic "
+                                "probability of the previous scan's nearest point moved by its flow, within this distance "
+                                "(m); 0: no prior, iteration 0 has no mask")
 
 
 class FlowEstimate(Protocol):
@@ -97,6 +101,21 @@ def flow_change(new: np.ndarray, old: np.ndarray | None) -> float:
     if old is None:
         return float("inf")
     return float(np.linalg.norm(new - old, axis=1).mean()) if len(new) else 0.0
+
+
+def carry_mask(points: np.ndarray, flow: np.ndarray, probability: np.ndarray, next_points: np.ndarray,
+               radius: float) -> np.ndarray:
+    """The temporal prior M^(0) of the next scan: each of its points takes the dynamic probability of the nearest
+    point of this scan moved by its flow into the next scan's frame (0 where none lies within radius)."""
+    prior = np.zeros(len(next_points), np.float32)
+    carried = np.flatnonzero(np.asarray(probability) > 0.0)
+    if carried.size == 0 or radius <= 0 or len(next_points) == 0:
+        return prior
+    moved = np.asarray(points, np.float64)[carried, :3] + np.asarray(flow, np.float64)[carried]
+    found = nearest(moved, np.asarray(next_points, np.float64)[:, :3], radius)
+    hit = np.isfinite(found.distance)
+    prior[hit] = np.asarray(probability, np.float32)[carried[found.index[hit]]]
+    return prior
 
 
 class FusionLoop:
