@@ -17,7 +17,7 @@ from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_extents, label_means, pick_per_label, ragged_arange
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, finish, prepare
-from ssf_flow_node.core.preprocess import PreprocessConfig, check_mask
+from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
 from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
 
 
@@ -43,11 +43,13 @@ class RigidConfig(Section):
     icp_iterations: int = Field(5, ge=1, description="iterations of the batched per-cluster ICP")
     icp_gates: tuple[float, float] = Field((1.0, 0.3), description="correspondence gate (m), first and last iteration")
     residual_cap: float = Field(1.0, gt=0.0, description="nearest-neighbour residuals are truncated here (m)")
-    min_gain: float = Field(0.5, ge=0.0, le=1.0, description="share of the static hypothesis' residual (to the points, or "
-                            "to the surfaces) a motion must remove (where the mask does not call the cluster dynamic)")
+    min_gain: float = Field(0.3, ge=0.0, le=1.0, description="share of the static hypothesis' distance to the surfaces "
+                            "of scan t+1 a motion must remove (where the mask does not call the cluster dynamic)")
+    min_point_gain: float = Field(0.5, ge=0.0, le=1.0, description="or: share of its distance to the points")
     mask_gain: float = Field(0.1, ge=0.0, le=1.0, description="the same share where the mask calls the cluster dynamic")
     surface_noise: float = Field(2.0, ge=0.0, description="a cluster standing still must miss the surfaces of scan t+1 by "
-                                 "more than this many times the scene's median miss before its motion counts")
+                                 "more than this many times the scene's median miss, and its surfaces' own roughness, "
+                                 "before its motion counts")
     inlier_gate: float = Field(0.3, gt=0.0, description="a point is explained by scan t+1 within this distance (m)")
     min_explained_gain: float = Field(0.25, ge=0.0, le=1.0, description="or: share of a cluster's points a motion must "
                                       "newly explain")
@@ -77,12 +79,13 @@ class ClusterMotions(NamedTuple):
 
 @dataclass
 class PairState:
-    """What one scan pair keeps across the calls of the fusion loop: samples, target normals, ground split, the
-    random order of the ego fit's source points and the ego motion found without a mask."""
+    """What one scan pair keeps across the calls of the fusion loop: samples, target normals, ground split, the ego
+    fit's source points (the sample, then ground points) in a fixed random order, and the first ego motion found."""
 
     key: bytes
     pair: PreparedPair
     matcher: ScanMatcher
+    source: np.ndarray
     order: np.ndarray
     height1: np.ndarray
     above1: np.ndarray
@@ -119,7 +122,8 @@ class RigidFlowEstimator:
                                   None if dynamic is None else dynamic[above1])
         # 3. rigid motion of each cluster (histogram-initialised ICP, kept only where it explains the data); clusters
         #    that stay still although parts of them changed are clustered finer and tried again
-        normals2 = state.matcher.normals()[above2] if self.config.plane else None
+        normals = state.matcher.normals()[: points2.shape[0]] * state.matcher.planar[: points2.shape[0], None]
+        normals2 = normals[above2] if self.config.plane else None
         belief = None if masked is None else masked[above1]
         clusters, motions = split_motions(compensated[above1], points2[above2], clusters, self.config, belief, normals2)
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
@@ -128,7 +132,7 @@ class RigidFlowEstimator:
         labels[above1] = clusters.labels1
         low = np.flatnonzero(~above1)
         labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions, points2,
-                                       state.matcher.normals(), self.config)
+                                       normals, self.config)
         moved = apply_motions(compensated, labels, motions)
         return finish(pair, moved - points1, ego, self.preprocess)
 
@@ -141,17 +145,19 @@ class RigidFlowEstimator:
         points1, points2 = pair.sample1.points, pair.sample2.points
         height1 = height_above_ground(points1, self.preprocess.ground_cell)
         above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
-        order = np.random.default_rng(self.registration.seed).permutation(points1.shape[0])
-        self.state = PairState(key, pair, ScanMatcher(points2, self.registration), order, height1,
+        source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
+        order = np.random.default_rng(self.registration.seed).permutation(source.shape[0])
+        self.state = PairState(key, pair, ScanMatcher(target, self.registration), source, order, height1,
                                height1 >= self.preprocess.ground_height, above2)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
         """Ego motion from the points not called dynamic: a full alignment the first time on a pair, then a
         refinement from it (the same mask always gives the same answer)."""
-        points = state.pair.sample1.points
-        keep = np.ones(points.shape[0], bool) if dynamic is None else ~dynamic
-        source = points[state.order[keep[state.order]]]
+        keep = np.ones(state.source.shape[0], bool)
+        if dynamic is not None:
+            keep[: dynamic.size] = ~dynamic
+        source = state.source[state.order[keep[state.order]]]
         if state.base_ego is None:
             state.base_ego = state.matcher.align(source, ordered=True)
             state.base_dynamic = None if dynamic is None else dynamic.copy()
@@ -159,6 +165,11 @@ class RigidFlowEstimator:
         same = (dynamic is None and state.base_dynamic is None) or (
             dynamic is not None and state.base_dynamic is not None and np.array_equal(dynamic, state.base_dynamic))
         return state.base_ego if same else state.matcher.refine(source, state.base_ego, ordered=True)
+
+
+def with_ground(points: np.ndarray, sample: Sample) -> np.ndarray:
+    """The sampled points of a scan followed by its ground points kept for the ego registration."""
+    return sample.points if sample.ground is None else np.concatenate([sample.points, points[sample.ground]])
 
 
 def fingerprint(pc1: np.ndarray, pc2: np.ndarray) -> bytes:
@@ -267,10 +278,10 @@ def surface_distance(moved: np.ndarray, tree: cKDTree, points2: np.ndarray, norm
         hit[hit] = labels2[index[hit]] == allowed[hit]
     point = np.where(hit, gap, cap)
     plane = np.full(len(moved), np.nan)
-    if normals2 is None:
-        plane[hit] = gap[hit]
-    else:
-        plane[hit] = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
+    plane[hit] = gap[hit]
+    if normals2 is not None:  # zero normals: no surface there, the point distance stands
+        along = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
+        plane[hit] = np.where(np.abs(normals2[index[hit]]).sum(axis=1) > 0, along, gap[hit])
     return point, plane
 
 
@@ -288,10 +299,10 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
 
 
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
-                    belief: np.ndarray | None, normals2: np.ndarray | None, noise: float,
+                    belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
                     tree: cKDTree | None = None, candidates: np.ndarray | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
-    standing still, beyond the scene's surface noise (`noise`, m)."""
+    standing still, and standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
     count = clusters.count
     yaw, translation = np.zeros(count), np.zeros((count, 3))
     if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
@@ -332,11 +343,13 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     fit_static = fit_quality(lifted, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
-    floor = max(config.surface_noise * noise, 0.5 * config.min_speed * config.dt)
-    misfit = fit_static.plane > floor  # standing still misses the surfaces it lies near
-    no_worse = fit_moving.plane <= np.maximum(fit_static.plane, floor)
+    keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
+    floor = floors[clusters.parent]
+    counted = np.maximum(label_counts(labels, count), 1)  # a mean over few points needs a wider margin
+    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))
+    no_worse = (fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
     explains = no_worse & ((misfit & ((fit_moving.plane < keep * fit_static.plane)
-                                      | (fit_moving.residual < keep * fit_static.residual)))
+                                      | (fit_moving.residual < keep_point * fit_static.residual)))
                            | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
     moving = active & (speed > config.min_speed) & explains
     yaw[~moving], translation[~moving] = 0.0, 0.0
@@ -351,13 +364,12 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
     _, still = surface_distance(points1, tree, points2, normals2, config.residual_cap,
                                 clusters.parent[clusters.labels1], clusters.labels2)
     near = np.isfinite(still)
-    noise = float(np.median(still[near])) if near.any() else 0.0
-    floor = max(config.surface_noise * noise, 0.5 * config.min_speed * config.dt)
+    floors = noise_floors(points2, normals2, clusters, tree, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
-    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, noise, tree)
+    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
-    changed = still > floor
+    changed = still > floors[clusters.parent[clusters.labels1]]
     changed_clusters = label_counts(clusters.labels1[changed], clusters.count) >= config.min_cluster_points
     components = np.unique(clusters.parent[changed_clusters & ~motions.moving])
     if components.size == 0:
@@ -372,13 +384,30 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
     labels2[inside2] = pieces.labels2 + component_offset
     split = Clusters(labels1, labels2, offset + pieces.count,
                      np.concatenate([clusters.parent, pieces.parent + component_offset]))
+    origin = np.zeros(component_count(pieces), np.int64)  # the component each piece was cut from
+    origin[pieces.parent[pieces.labels1]] = clusters.parent[clusters.labels1[inside1]]
+    floors = np.concatenate([floors, floors[origin]])
     # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
     fresh = (np.arange(split.count) >= offset) & (
-        label_means(still, split.labels1, split.count, near.astype(np.float64)) > floor)
-    more = cluster_motions(points1, points2, split, config, belief, normals2, noise, tree, candidates=fresh)
+        label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
+    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, candidates=fresh)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
                                  np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
+
+
+def noise_floors(points2: np.ndarray, normals2: np.ndarray | None, clusters: Clusters, tree: cKDTree, noise: float,
+                 config: RigidConfig) -> np.ndarray:
+    """Per component, the miss (m) below which standing still explains it: the scene's median miss, the component's
+    own roughness (how far scan t+1's points lie from their neighbours' surfaces) and half a step at min_speed."""
+    gap, index = tree.query(points2, k=2)
+    other = index[:, 1]
+    rough = gap[:, 1]
+    if normals2 is not None:
+        surface = np.abs(normals2).sum(axis=1) > 0
+        rough[surface] = np.abs(np.einsum("ij,ij->i", points2[other] - points2, normals2))[surface]
+    roughness = label_means(rough, clusters.labels2, component_count(clusters))
+    return np.maximum(config.surface_noise * np.maximum(roughness, noise), 0.5 * config.min_speed * config.dt)
 
 
 def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, motions: ClusterMotions,
