@@ -14,7 +14,7 @@ from ssf_common.config import Section
 from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.labels import label_counts, label_extents, label_means, pick_per_label, ragged_arange
+from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, finish, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
@@ -92,6 +92,7 @@ class PairState:
     above2: np.ndarray
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
+    motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
 
 
 class RigidFlowEstimator:
@@ -125,7 +126,9 @@ class RigidFlowEstimator:
         normals = state.matcher.normals()[: points2.shape[0]] * state.matcher.planar[: points2.shape[0], None]
         normals2 = normals[above2] if self.config.plane else None
         belief = None if masked is None else masked[above1]
-        clusters, motions = split_motions(compensated[above1], points2[above2], clusters, self.config, belief, normals2)
+        previous = None if state.motion is None else state.motion[above1]
+        clusters, motions = split_motions(compensated[above1], points2[above2], clusters, self.config, belief, normals2,
+                                          previous)
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
         #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
@@ -134,6 +137,7 @@ class RigidFlowEstimator:
         labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions, points2,
                                        normals, self.config)
         moved = apply_motions(compensated, labels, motions)
+        state.motion = moved - compensated
         return finish(pair, moved - points1, ego, self.preprocess)
 
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
@@ -191,20 +195,38 @@ def joint_clusters(points1: np.ndarray, points2: np.ndarray, voxel: float, group
     return Clusters(inverse.reshape(-1).astype(np.int64), labels2.astype(np.int64), int(codes.size), codes // 2)
 
 
+def priorities(count: int, stream: int = 0) -> np.ndarray:
+    """A fixed random number per point (the same for the same number of points: one pair's samples)."""
+    return np.random.default_rng([count, stream]).random(count)
+
+
+def ranked_per_label(labels: np.ndarray, active: np.ndarray, per_label: int, priority: np.ndarray) -> np.ndarray:
+    """Up to `per_label` point indices of each active label, those of lowest priority value: a cluster picks the same
+    points whatever the other clusters are, so the loop's estimates move only where the clusters change."""
+    candidates = np.flatnonzero((labels >= 0) & active[np.maximum(labels, 0)])
+    ordered = candidates[np.lexsort((priority[candidates], labels[candidates]))]
+    sorted_labels = labels[ordered]
+    rank = np.arange(ordered.size) - np.searchsorted(sorted_labels, sorted_labels, side="left")
+    return ordered[rank < per_label]
+
+
 def component_count(clusters: Clusters) -> int:
     """Number of joint components the clusters' scan t+1 labels refer to."""
     return int(max(clusters.labels2.max(initial=-1), clusters.parent.max(initial=-1)) + 1)
 
 
 def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, active: np.ndarray,
-                         config: RigidConfig, tree: cKDTree, rng: np.random.Generator) -> np.ndarray:
-    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram."""
+                         config: RigidConfig, tree: cKDTree, previous: np.ndarray | None = None) -> np.ndarray:
+    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram, and the mean
+    motion its points had in the previous estimate on this pair."""
     count = clusters.count
-    picks1 = pick_per_label(clusters.labels1, active, config.histogram_points, rng)
+    picks1 = ranked_per_label(clusters.labels1, active, config.histogram_points, priorities(len(points1)))
     present = np.zeros(component_count(clusters), bool)
     present[clusters.parent[active]] = True
-    picks2 = pick_per_label(clusters.labels2, present, config.histogram_points, rng)
+    picks2 = ranked_per_label(clusters.labels2, present, config.histogram_points, priorities(len(points2), 1))
     candidates = [np.zeros((count, 3)), centroid_shift(points1, points2, clusters)]
+    if previous is not None:
+        candidates.append(label_means(previous, clusters.labels1, count))
     if picks1.size and picks2.size:
         candidates += histogram_peaks(points1, points2, clusters, picks1, picks2, config)
     labels = clusters.labels1[picks1]
@@ -300,7 +322,8 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
 
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
                     belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
-                    tree: cKDTree | None = None, candidates: np.ndarray | None = None) -> ClusterMotions:
+                    tree: cKDTree | None = None, candidates: np.ndarray | None = None,
+                    previous: np.ndarray | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
     standing still, and standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
     count = clusters.count
@@ -318,9 +341,8 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     if candidates is not None:
         active &= candidates
     tree = cKDTree(points2) if tree is None else tree
-    rng = np.random.default_rng(0)
-    translation = initial_translations(points1, points2, clusters, active, config, tree, rng)
-    members = pick_per_label(clusters.labels1, active, config.icp_points, rng)
+    translation = initial_translations(points1, points2, clusters, active, config, tree, previous)
+    members = ranked_per_label(clusters.labels1, active, config.icp_points, priorities(len(points1), 2))
     source, labels = points1[members], clusters.labels1[members]
     allowed = clusters.parent[labels]
     max_yaw = config.max_yaw_rate * config.dt
@@ -338,8 +360,13 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                                          max_yaw)
         yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
     moved = yaw_translate(source, yaw[labels], translation[labels])
-    lifted = source + np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
     fit_moving = fit_quality(moved, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    if previous is not None:  # the loop never trades a motion for one that fits worse
+        yaw, translation, fit_moving = better_of(source, labels, previous[members], yaw, translation, fit_moving,
+                                                 lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed,
+                                                                       config, count, normals2, points2), max_yaw)
+        moved = yaw_translate(source, yaw[labels], translation[labels])
+    lifted = source + np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
     fit_static = fit_quality(lifted, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
@@ -356,8 +383,22 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     return ClusterMotions(yaw, translation, moving)
 
 
+def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw: np.ndarray, translation: np.ndarray,
+              fit: Fit, quality, max_yaw: float) -> tuple[np.ndarray, np.ndarray, Fit]:
+    """Per cluster, the new motion or the one its points had before (as a planar rigid fit of their displacements),
+    whichever lies closer to scan t+1 (surface plus point distance)."""
+    count = yaw.size
+    old_yaw, old_translation = planar_kabsch(source, source + previous, labels, count, max_yaw)
+    old_fit = quality(yaw_translate(source, old_yaw[labels], old_translation[labels]))
+    moved_before = label_means(np.abs(previous).sum(axis=1), labels, count) > 0
+    keep = moved_before & (old_fit.plane + old_fit.residual < fit.plane + fit.residual)
+    chosen = Fit(*(np.where(keep, old, new) for old, new in zip(old_fit, fit)))
+    return np.where(keep, old_yaw, yaw), np.where(keep[:, None], old_translation, translation), chosen
+
+
 def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
-                  belief: np.ndarray | None, normals2: np.ndarray | None) -> tuple[Clusters, ClusterMotions]:
+                  belief: np.ndarray | None, normals2: np.ndarray | None,
+                  previous: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
     """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
     surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own."""
     tree = cKDTree(points2)
@@ -366,7 +407,7 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
     near = np.isfinite(still)
     floors = noise_floors(points2, normals2, clusters, tree, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
-    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree)
+    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
     changed = still > floors[clusters.parent[clusters.labels1]]
@@ -390,7 +431,7 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
     # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
     fresh = (np.arange(split.count) >= offset) & (
         label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
-    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, candidates=fresh)
+    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
                                  np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
