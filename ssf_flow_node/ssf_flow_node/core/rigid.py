@@ -29,7 +29,7 @@ class RigidConfig(Section):
     split_voxel: float = Field(0.25, ge=0.0, description="a cluster that stays still although parts of it changed is "
                                "clustered again with this voxel (m), so a walker beside a parked car gets its own motion "
                                "(0: never)")
-    min_cluster_points: int = Field(10, ge=3, description="points needed in each scan to register a cluster")
+    min_cluster_points: int = Field(15, ge=3, description="points needed in each scan to register a cluster")
     min_masked_points: int = Field(3, ge=2, description="points needed in each scan for a cluster the mask calls dynamic")
     max_speed: float = Field(30.0, gt=0.0, description="fastest object (m/s)")
     histogram_bin: float = Field(0.3, gt=0.0, description="bin (m) of the translation histogram")
@@ -53,6 +53,8 @@ class RigidConfig(Section):
     inlier_gate: float = Field(0.3, gt=0.0, description="a point is explained by scan t+1 within this distance (m)")
     min_explained_gain: float = Field(0.25, ge=0.0, le=1.0, description="or: share of a cluster's points a motion must "
                                       "newly explain")
+    max_unexplained: float = Field(0.2, ge=0.0, le=1.0, description="a motion must explain all but this share of a "
+                                   "cluster's points")
     min_speed: float = Field(0.5, ge=0.0, description="clusters slower than this (m/s) are static")
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
@@ -147,12 +149,15 @@ class RigidFlowEstimator:
             return self.state
         pair = prepare(pc1, pc2, None, self.preprocess)
         points1, points2 = pair.sample1.points, pair.sample2.points
-        height1 = height_above_ground(points1, self.preprocess.ground_cell)
-        above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
+        matcher = ScanMatcher(target, self.registration)
         order = np.random.default_rng(self.registration.seed).permutation(source.shape[0])
-        self.state = PairState(key, pair, ScanMatcher(target, self.registration), source, order, height1,
-                               height1 >= self.preprocess.ground_height, above2)
+        height1 = height_above_ground(points1, self.preprocess.ground_cell)
+        above1 = height1 >= self.preprocess.ground_height
+        above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
+        if self.preprocess.remove_ground or not shows_ground(matcher, ~above2):
+            above1, above2 = np.ones_like(above1), np.ones_like(above2)  # the lowest points are objects' bottoms
+        self.state = PairState(key, pair, matcher, source, order, height1, above1, above2)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
@@ -169,6 +174,14 @@ class RigidFlowEstimator:
         same = (dynamic is None and state.base_dynamic is None) or (
             dynamic is not None and state.base_dynamic is not None and np.array_equal(dynamic, state.base_dynamic))
         return state.base_ego if same else state.matcher.refine(source, state.base_ego, ordered=True)
+
+
+def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
+    """Whether the lowest points of the sampled scan t+1 lie mostly on level surfaces (a ground), rather than being the
+    bottoms of walls and objects of a scan whose ground was cut away."""
+    normals = matcher.normals()[: low.size]
+    level = matcher.planar[: low.size] & (np.abs(normals[:, 2]) > 0.9)
+    return bool(low.any() and level[low].mean() > 0.5)
 
 
 def with_ground(points: np.ndarray, sample: Sample) -> np.ndarray:
@@ -374,7 +387,8 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     floor = floors[clusters.parent]
     counted = np.maximum(label_counts(labels, count), 1)  # a mean over few points needs a wider margin
     misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))
-    no_worse = (fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
+    no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
+                & (fit_moving.unexplained <= config.max_unexplained))
     explains = no_worse & ((misfit & ((fit_moving.plane < keep * fit_static.plane)
                                       | (fit_moving.residual < keep_point * fit_static.residual)))
                            | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
