@@ -451,17 +451,27 @@ def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, 
                                  np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
 
 
+def label_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Per label, the median of values (zero for empty labels)."""
+    order = np.lexsort((values, labels))
+    sizes = label_counts(labels, count)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    middle = values[order][np.minimum(starts + sizes // 2, max(len(values) - 1, 0))] if len(values) else np.zeros(count)
+    return np.where(sizes > 0, middle, 0.0)
+
+
 def noise_floors(points2: np.ndarray, normals2: np.ndarray | None, clusters: Clusters, tree: cKDTree, noise: float,
                  config: RigidConfig) -> np.ndarray:
     """Per component, the miss (m) below which standing still explains it: the scene's median miss, the component's
-    own roughness (how far scan t+1's points lie from their neighbours' surfaces) and half a step at min_speed."""
+    own roughness (the median distance of scan t+1's points from their neighbours' surfaces) and half a step at
+    min_speed."""
     gap, index = tree.query(points2, k=2)
     other = index[:, 1]
     rough = gap[:, 1]
     if normals2 is not None:
         surface = np.abs(normals2).sum(axis=1) > 0
         rough[surface] = np.abs(np.einsum("ij,ij->i", points2[other] - points2, normals2))[surface]
-    roughness = label_means(rough, clusters.labels2, component_count(clusters))
+    roughness = label_medians(rough, clusters.labels2, component_count(clusters))
     return np.maximum(config.surface_noise * np.maximum(roughness, noise), 0.5 * config.min_speed * config.dt)
 
 
