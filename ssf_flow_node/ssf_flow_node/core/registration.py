@@ -32,18 +32,6 @@ def to_cloud(points: np.ndarray):
     return o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, dtype=np.float64)))
 
 
-def local_planes(points: np.ndarray, neighbours: int, flatness: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
-    """Per point, the normal of the plane through its nearest neighbours (smallest principal axis) and whether that
-    neighbourhood spans a surface at all (its second principal spread at least `flatness` of the first), not a line
-    such as one scan column on a pole."""
-    from scipy.spatial import cKDTree
-
-    _, index = cKDTree(points).query(points, k=min(neighbours, len(points)))
-    local = points[index] - points[index].mean(axis=1, keepdims=True)
-    values, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", local, local))
-    return vectors[:, :, 0], values[:, 1] > flatness * np.maximum(values[:, 2], 1e-12)
-
-
 class ScanMatcher:
     """Point-to-plane ICP against one target scan (its normals computed once)."""
 
@@ -53,10 +41,8 @@ class ScanMatcher:
         self.config = config
         self.usable = target.shape[0] >= 10
         self.target = to_cloud(target)
-        self.planar = np.zeros(target.shape[0], bool)
         if self.usable:
-            normals, self.planar = local_planes(np.asarray(target, np.float64), config.normal_neighbours)
-            self.target.normals = o3d.utility.Vector3dVector(normals)
+            self.target.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(config.normal_neighbours))
 
     def normals(self) -> np.ndarray:
         """Unit normals (N, 3) of the target points (zeros when the target was too small)."""

@@ -59,6 +59,9 @@ class RigidConfig(Section):
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
+    ego_refit: float = Field(0.02, ge=0.0, le=1.0, description="on the same pair again, the ego motion is refined only "
+                             "when the mask changed on more than this share of its points (the robust kernel copes "
+                             "with the rest)")
 
 
 class Clusters(NamedTuple):
@@ -92,6 +95,8 @@ class PairState:
     height1: np.ndarray
     above1: np.ndarray
     above2: np.ndarray
+    surfaces: Surfaces  # scan t+1 above the ground
+    all_surfaces: Surfaces  # all of scan t+1
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
@@ -125,19 +130,16 @@ class RigidFlowEstimator:
                                   None if dynamic is None else dynamic[above1])
         # 3. rigid motion of each cluster (histogram-initialised ICP, kept only where it explains the data); clusters
         #    that stay still although parts of them changed are clustered finer and tried again
-        normals = state.matcher.normals()[: points2.shape[0]] * state.matcher.planar[: points2.shape[0], None]
-        normals2 = normals[above2] if self.config.plane else None
         belief = None if masked is None else masked[above1]
         previous = None if state.motion is None else state.motion[above1]
-        clusters, motions = split_motions(compensated[above1], points2[above2], clusters, self.config, belief, normals2,
-                                          previous)
+        clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous)
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
         #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
         labels[above1] = clusters.labels1
         low = np.flatnonzero(~above1)
-        labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions, points2,
-                                       normals, self.config)
+        labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions,
+                                       state.all_surfaces, self.config)
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
         return finish(pair, moved - points1, ego, self.preprocess)
@@ -157,12 +159,15 @@ class RigidFlowEstimator:
         above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
         if self.preprocess.remove_ground or not shows_ground(matcher, ~above2):
             above1, above2 = np.ones_like(above1), np.ones_like(above2)  # the lowest points are objects' bottoms
-        self.state = PairState(key, pair, matcher, source, order, height1, above1, above2)
+        normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
+        every = surfaces_of(points2, normals)
+        above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
+        self.state = PairState(key, pair, matcher, source, order, height1, above1, above2, above, every)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
         """Ego motion from the points not called dynamic: a full alignment the first time on a pair, then a
-        refinement from it (the same mask always gives the same answer)."""
+        refinement from it where the mask changed enough (the same mask always gives the same answer)."""
         keep = np.ones(state.source.shape[0], bool)
         if dynamic is not None:
             keep[: dynamic.size] = ~dynamic
@@ -171,22 +176,41 @@ class RigidFlowEstimator:
             state.base_ego = state.matcher.align(source, ordered=True)
             state.base_dynamic = None if dynamic is None else dynamic.copy()
             return state.base_ego
-        same = (dynamic is None and state.base_dynamic is None) or (
-            dynamic is not None and state.base_dynamic is not None and np.array_equal(dynamic, state.base_dynamic))
-        return state.base_ego if same else state.matcher.refine(source, state.base_ego, ordered=True)
+        sampled = state.pair.sample1.indices.size
+        before = np.zeros(sampled, bool) if state.base_dynamic is None else state.base_dynamic
+        now = np.zeros(sampled, bool) if dynamic is None else dynamic
+        changed = np.count_nonzero(before != now) / max(keep.size, 1)
+        return state.base_ego if changed <= self.config.ego_refit else state.matcher.refine(source, state.base_ego, ordered=True)
 
 
 def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
     """Whether the lowest points of the sampled scan t+1 lie mostly on level surfaces (a ground), rather than being the
     bottoms of walls and objects of a scan whose ground was cut away."""
-    normals = matcher.normals()[: low.size]
-    level = matcher.planar[: low.size] & (np.abs(normals[:, 2]) > 0.9)
+    level = np.abs(matcher.normals()[: low.size, 2]) > 0.9
     return bool(low.any() and level[low].mean() > 0.5)
 
 
 def with_ground(points: np.ndarray, sample: Sample) -> np.ndarray:
     """The sampled points of a scan followed by its ground points kept for the ego registration."""
     return sample.points if sample.ground is None else np.concatenate([sample.points, points[sample.ground]])
+
+
+class Surfaces(NamedTuple):
+    """Points of scan t+1 to register against: their normals (None: point-to-point), a KD-tree, and per point how far
+    its nearest neighbour lies off its surface (its roughness)."""
+
+    points: np.ndarray
+    normals: np.ndarray | None
+    tree: cKDTree
+    roughness: np.ndarray
+
+
+def surfaces_of(points: np.ndarray, normals: np.ndarray | None) -> Surfaces:
+    """Searchable surfaces of scan t+1's points."""
+    tree = cKDTree(points)
+    gap, index = tree.query(points, k=2) if len(points) > 1 else (np.zeros((len(points), 2)), np.zeros((len(points), 2), int))
+    rough = gap[:, 1] if normals is None else np.abs(np.einsum("ij,ij->i", points[index[:, 1]] - points, normals))
+    return Surfaces(points, normals, tree, rough)
 
 
 def fingerprint(pc1: np.ndarray, pc2: np.ndarray) -> bytes:
@@ -313,10 +337,10 @@ def surface_distance(moved: np.ndarray, tree: cKDTree, points2: np.ndarray, norm
         hit[hit] = labels2[index[hit]] == allowed[hit]
     point = np.where(hit, gap, cap)
     plane = np.full(len(moved), np.nan)
-    plane[hit] = gap[hit]
-    if normals2 is not None:  # zero normals: no surface there, the point distance stands
-        along = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
-        plane[hit] = np.where(np.abs(normals2[index[hit]]).sum(axis=1) > 0, along, gap[hit])
+    if normals2 is None:
+        plane[hit] = gap[hit]
+    else:
+        plane[hit] = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
     return point, plane
 
 
@@ -410,16 +434,15 @@ def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw:
     return np.where(keep, old_yaw, yaw), np.where(keep[:, None], old_translation, translation), chosen
 
 
-def split_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
-                  belief: np.ndarray | None, normals2: np.ndarray | None,
-                  previous: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
+def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, config: RigidConfig,
+                  belief: np.ndarray | None, previous: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
     """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
     surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own."""
-    tree = cKDTree(points2)
+    points2, normals2, tree = surfaces.points, surfaces.normals, surfaces.tree
     _, still = surface_distance(points1, tree, points2, normals2, config.residual_cap,
                                 clusters.parent[clusters.labels1], clusters.labels2)
     near = np.isfinite(still)
-    floors = noise_floors(points2, normals2, clusters, tree, float(np.median(still[near])) if near.any() else 0.0, config)
+    floors = noise_floors(surfaces, clusters, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
     motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous)
     if config.split_voxel <= 0 or clusters.count == 0:
@@ -460,27 +483,21 @@ def label_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndar
     return np.where(sizes > 0, middle, 0.0)
 
 
-def noise_floors(points2: np.ndarray, normals2: np.ndarray | None, clusters: Clusters, tree: cKDTree, noise: float,
-                 config: RigidConfig) -> np.ndarray:
+def noise_floors(surfaces: Surfaces, clusters: Clusters, noise: float, config: RigidConfig) -> np.ndarray:
     """Per component, the miss (m) below which standing still explains it: the scene's median miss, the component's
     own roughness (the median distance of scan t+1's points from their neighbours' surfaces) and half a step at
     min_speed."""
-    gap, index = tree.query(points2, k=2)
-    other = index[:, 1]
-    rough = gap[:, 1]
-    if normals2 is not None:
-        surface = np.abs(normals2).sum(axis=1) > 0
-        rough[surface] = np.abs(np.einsum("ij,ij->i", points2[other] - points2, normals2))[surface]
-    roughness = label_medians(rough, clusters.labels2, component_count(clusters))
-    return np.maximum(config.surface_noise * np.maximum(roughness, noise), 0.5 * config.min_speed * config.dt)
+    rough = label_medians(surfaces.roughness, clusters.labels2, component_count(clusters))
+    return np.maximum(config.surface_noise * np.maximum(rough, noise), 0.5 * config.min_speed * config.dt)
 
 
 def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, motions: ClusterMotions,
-                     points2: np.ndarray, normals2: np.ndarray, config: RigidConfig) -> np.ndarray:
+                     surfaces: Surfaces, config: RigidConfig) -> np.ndarray:
     """Label of the moving cluster within attach_distance of each point, where that cluster's motion brings the point
     onto the surfaces of scan t+1 clearly better than standing still (-1 elsewhere)."""
     attached = np.full(points.shape[0], -1)
     on_moving = (labels >= 0) & motions.moving[np.maximum(labels, 0)]
+    points2, normals, tree = surfaces.points, surfaces.normals, surfaces.tree
     if not on_moving.any() or points.shape[0] == 0 or points2.shape[0] == 0:
         return attached
     gap, index = cKDTree(clustered[on_moving]).query(points, distance_upper_bound=config.attach_distance)
@@ -489,8 +506,6 @@ def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarr
         return attached
     cluster = labels[on_moving][index[near]]
     moved = yaw_translate(points[near], motions.yaw[cluster], motions.translation[cluster])
-    tree = cKDTree(points2)
-    normals = normals2 if len(normals2) == len(points2) and config.plane else None
     still = np.nan_to_num(surface_distance(points[near], tree, points2, normals, config.residual_cap)[1],
                           nan=config.residual_cap)
     carried = np.nan_to_num(surface_distance(moved, tree, points2, normals, config.residual_cap)[1],
