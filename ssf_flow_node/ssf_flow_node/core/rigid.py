@@ -100,6 +100,8 @@ class PairState:
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
+    moved: np.ndarray | None = None  # the sampled points that motion moves
+    result: FlowResult | None = None  # the last estimate
 
 
 class RigidFlowEstimator:
@@ -121,6 +123,8 @@ class RigidFlowEstimator:
         masked = None if mask is None else check_mask(mask, pair.pc1.shape[0])[pair.sample1.indices]
         points1, points2 = pair.sample1.points, pair.sample2.points
         dynamic = None if masked is None else masked > self.config.mask_threshold
+        if dynamic is not None and state.result is not None and np.array_equal(dynamic, state.moved):
+            return state.result  # the mask calls dynamic just what the last estimate moved: nothing new to use
         above1, above2 = state.above1, state.above2
         # 1. ego motion from the points the mask does not call dynamic (robust kernel for the ones it misses)
         ego = self.ego_motion(state, dynamic)
@@ -142,7 +146,9 @@ class RigidFlowEstimator:
                                        state.all_surfaces, self.config)
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
-        return finish(pair, moved - points1, ego, self.preprocess)
+        state.moved = np.abs(state.motion).max(axis=1) > 0.0
+        state.result = finish(pair, moved - points1, ego, self.preprocess)
+        return state.result
 
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
         """The cached work on this pair of scans (the fusion loop asks for the same pair again), or a fresh one."""
