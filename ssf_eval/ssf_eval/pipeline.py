@@ -43,6 +43,10 @@ class SsfPerception:
                                make_segmenter(config=config.seg, device=device), config.fusion)
         self.previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, flow, dynamic probability
 
+    def reset(self) -> None:
+        """Forget the previous scan (a new sequence starts)."""
+        self.previous = None
+
     def perceive(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None, stamp_ns: int = 0,
                  frame_id: str = "sensor", follows: bool = False) -> Perception:
         """Flow, segmentation and obstacles of scan t (pc1) towards scan t+1 (pc2). follows: pc1 is the scan the

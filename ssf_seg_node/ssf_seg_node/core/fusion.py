@@ -191,17 +191,30 @@ class _Scan:
     started_s: float
     flows: dict[int, np.ndarray] = field(default_factory=dict)
     masks: dict[int, MotionMask] = field(default_factory=dict)  # mask computed from the flow of iteration i
+    prior: np.ndarray | None = None  # the previous scan's segmentation carried onto this one
+
+
+@dataclass(frozen=True)
+class _Finished:
+    stamp_ns: int
+    points: np.ndarray
+    flow: np.ndarray
+    dynamic_prob: np.ndarray
 
 
 class DistributedLoop:
     """The fusion loop when flow and segmentation run in other processes: it takes S^(i) and the mask computed from
     it as they arrive, keyed by stamp and iteration, and decides to continue (a mask hint) or to finish. A lost or
-    late message never stalls it: after `timeout_s` the best answer so far is published."""
+    late message never stalls it: after `timeout_s` the best answer so far is published. The flow of a scan's
+    iteration 0 is estimated before any mask exists, so the temporal prior (the previous scan's segmentation carried
+    by its flow) joins the first mask hint."""
 
     def __init__(self, config: FusionConfig, timeout_s: float = 0.5) -> None:
         self.config = config
         self.timeout_s = timeout_s
         self.scan: _Scan | None = None
+        self.last: _Finished | None = None
+        self.gap_ns: int | None = None  # the shortest time between consecutive scans seen
         self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0}
 
     def on_flow(self, flow: SceneFlow, now_s: float) -> list[Finish]:
@@ -213,6 +226,7 @@ class DistributedLoop:
             if self.scan is not None:
                 done += self._finish_best("superseded")
             self.scan = _Scan(flow.stamp_ns, flow.frame_id, np.asarray(flow.points), now_s)
+            self.scan.prior = self._prior(self.scan)
         if len(flow.points) != len(self.scan.points):
             return done
         self.scan.flows[flow.iteration] = np.asarray(flow.flow, np.float32)
@@ -236,13 +250,26 @@ class DistributedLoop:
         status = self._status(i, delta_total, delta_flow, delta_mask, converged, mask)
         if converged or i + 1 >= self.config.max_iterations:
             return self._finish(i, status, "converged" if converged else "max_iterations")
-        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, mask.dynamic_prob, mask.instance, i + 1), status)
+        hint = mask.dynamic_prob if scan.prior is None or i > 0 else np.maximum(mask.dynamic_prob, scan.prior)
+        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, hint, mask.instance, i + 1), status)
 
     def on_timer(self, now_s: float) -> list[Finish]:
         """Give up on a scan that has waited too long, publishing the best answer so far."""
         if self.scan is not None and now_s - self.scan.started_s > self.timeout_s:
             return self._finish_best("timeout")
         return []
+
+    def _prior(self, scan: _Scan) -> np.ndarray | None:
+        """The last finished scan's segmentation carried onto this scan, if that scan came right before it (its flow
+        points into this scan's frame only then)."""
+        last = self.last
+        if last is None or self.config.prior_radius <= 0 or scan.stamp_ns <= last.stamp_ns:
+            return None
+        gap = scan.stamp_ns - last.stamp_ns
+        self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
+        if gap > 1.5 * self.gap_ns:
+            return None  # a scan was skipped in between
+        return carry_mask(last.points, last.flow, last.dynamic_prob, scan.points, self.config.prior_radius)
 
     def _status(self, iteration: int, total: float, flow: float, mask: float, converged: bool, seg: MotionMask) -> LoopStatus:
         static = int(np.count_nonzero(seg.dynamic_prob <= 0.5))
@@ -268,6 +295,7 @@ class DistributedLoop:
         segmentation = Segmentation.from_probability(mask.dynamic_prob, mask.instance)
         result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, scan.flows[iteration], segmentation,
                               iterations=iteration + 1, converged=reason == "converged")
+        self.last = _Finished(scan.stamp_ns, scan.points, scan.flows[iteration], mask.dynamic_prob)
         self.finished[reason] += 1
         self.scan = None
         return Finish(result, status, reason)
