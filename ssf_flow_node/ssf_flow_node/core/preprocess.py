@@ -105,15 +105,15 @@ def range_balanced(points: np.ndarray, count: int, rng: np.random.Generator) -> 
 
 
 def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k: int = 3,
-                     radius: float = np.inf) -> np.ndarray:
+                     radius: float = np.inf, still: np.ndarray | None = None) -> np.ndarray:
     """Motion relative to the scene for every point of a scan: exact on sampled points, interpolated on the
-    others near sampled points that move, zero elsewhere."""
+    others near sampled points that move (unless `still`), zero elsewhere."""
     motion = np.zeros((points.shape[0], 3), dtype=np.float32)
     motion[sample.indices] = relative
     moving = np.abs(relative).max(axis=1) > 0.0
     if not moving.any() or sample.indices.size == points.shape[0]:
         return motion
-    rest = np.ones(points.shape[0], dtype=bool)
+    rest = np.ones(points.shape[0], dtype=bool) if still is None else ~np.asarray(still, bool)
     rest[sample.indices] = False
     rest = np.flatnonzero(rest)
     gap, _ = cKDTree(sample.points[moving]).query(points[rest], distance_upper_bound=radius)

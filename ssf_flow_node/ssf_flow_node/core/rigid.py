@@ -56,6 +56,8 @@ class RigidConfig(Section):
     max_unexplained: float = Field(0.2, ge=0.0, le=1.0, description="a motion must explain all but this share of a "
                                    "cluster's points")
     min_speed: float = Field(0.5, ge=0.0, description="clusters slower than this (m/s) are static")
+    ground_clearance: float = Field(0.08, ge=0.0, description="where the ground is split off, points this close above "
+                                    "it (m) are ground and keep the scene's motion; higher ones near a mover share it")
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
@@ -97,6 +99,7 @@ class PairState:
     above2: np.ndarray
     surfaces: Surfaces  # scan t+1 above the ground
     all_surfaces: Surfaces  # all of scan t+1
+    ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
@@ -147,7 +150,7 @@ class RigidFlowEstimator:
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
         state.moved = np.abs(state.motion).max(axis=1) > 0.0
-        state.result = finish(pair, moved - points1, ego, self.preprocess)
+        state.result = finish(pair, moved - points1, ego, self.preprocess, state.ground1)
         return state.result
 
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
@@ -168,7 +171,10 @@ class RigidFlowEstimator:
         normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
         every = surfaces_of(points2, normals)
         above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
-        self.state = PairState(key, pair, matcher, source, order, height1, above1, above2, above, every)
+        ground1 = None
+        if self.preprocess.remove_ground:  # whole scans: points on the ground never take an object's motion
+            ground1 = height_above_ground(pair.pc1, self.preprocess.ground_cell) < self.config.ground_clearance
+        self.state = PairState(key, pair, matcher, source, order, height1, above1, above2, above, every, ground1)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
