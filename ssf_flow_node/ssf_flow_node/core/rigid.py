@@ -46,6 +46,8 @@ class RigidConfig(Section):
     min_gain: float = Field(0.3, ge=0.0, le=1.0, description="share of the static hypothesis' distance to the surfaces "
                             "of scan t+1 a motion must remove (where the mask does not call the cluster dynamic)")
     min_point_gain: float = Field(0.5, ge=0.0, le=1.0, description="or: share of its distance to the points")
+    support_gain: float = Field(0.1, ge=0.0, le=1.0, description="a motion proven by the surfaces must also bring the "
+                                "points this share closer (sliding along a wall does not)")
     mask_gain: float = Field(0.1, ge=0.0, le=1.0, description="the same share where the mask calls the cluster dynamic")
     surface_noise: float = Field(2.0, ge=0.0, description="a cluster standing still must miss the surfaces of scan t+1 by "
                                  "more than this many times the scene's median miss, and its surfaces' own roughness, "
@@ -425,7 +427,8 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))
     no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
                 & (fit_moving.unexplained <= config.max_unexplained))
-    explains = no_worse & ((misfit & ((fit_moving.plane < keep * fit_static.plane)
+    closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes
+    explains = no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
                                       | (fit_moving.residual < keep_point * fit_static.residual)))
                            | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
     moving = active & (speed > config.min_speed) & explains
