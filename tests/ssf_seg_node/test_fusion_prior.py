@@ -11,12 +11,13 @@ from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionCo
 
 
 def test_carry_mask_moves_the_probabilities_with_the_flow():
-    points = np.array([[0.0, 0, 0], [5.0, 0, 0], [10.0, 0, 0]])
-    flow = np.array([[1.0, 0, 0], [0.0, 0, 0], [0.0, 0, 0]])
-    probability = np.array([0.9, 0.0, 0.6], np.float32)
-    following = np.array([[1.1, 0, 0], [0.1, 0, 0], [10.2, 0, 0], [30.0, 0, 0]])
+    points = np.array([[0.0, 0, 0], [5.0, 0, 0], [10.0, 0, 0], [1.6, 0, 0]])
+    flow = np.array([[1.0, 0, 0], [0.0, 0, 0], [0.0, 0, 0], [0.0, 0, 0]])
+    probability = np.array([0.9, 0.0, 0.6, 0.0], np.float32)
+    following = np.array([[1.1, 0, 0], [0.1, 0, 0], [10.2, 0, 0], [30.0, 0, 0], [1.5, 0, 0]])
     prior = carry_mask(points, flow, probability, following, radius=0.5)
-    np.testing.assert_allclose(prior, [0.9, 0.0, 0.6, 0.0])  # the mover went to x=1; nothing near x=30
+    # the mover went to x=1; nothing near x=30; x=1.5 lies nearer the still point at 1.6 than the mover: no dilation
+    np.testing.assert_allclose(prior, [0.9, 0.0, 0.6, 0.0, 0.0])
     assert not carry_mask(points, flow, probability, following, radius=0.0).any()
 
 

@@ -19,8 +19,9 @@ class RegistrationConfig(Section):
     iterations: int = Field(20, ge=1, description="most ICP iterations per coarse stage")
     refine_points: int = Field(8192, ge=16, description="random source points of the refinement")
     refine_distance: float = Field(0.2, gt=0.0, description="correspondence distance (m) of the refinement")
-    refine_iterations: int = Field(20, ge=1, description="most ICP iterations of the refinement")
-    tolerance: float = Field(1e-4, gt=0.0, description="a stage ends once fitness and RMSE change by less than this (relative)")
+    refine_iterations: int = Field(40, ge=1, description="most ICP iterations of the refinement")
+    tolerance: float = Field(1e-6, gt=0.0, description="a stage ends once fitness and RMSE change by less than this "
+                             "(relative; the height converges slowly on scans without a ground)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for target normals (few: sharp planes on sparse scans)")
     seed: int = 0
 

@@ -108,13 +108,21 @@ def carry_mask(points: np.ndarray, flow: np.ndarray, probability: np.ndarray, ne
     """The temporal prior M^(0) of the next scan: each of its points takes the dynamic probability of the nearest
     point of this scan moved by its flow into the next scan's frame (0 where none lies within radius)."""
     prior = np.zeros(len(next_points), np.float32)
-    carried = np.flatnonzero(np.asarray(probability) > 0.0)
-    if carried.size == 0 or radius <= 0 or len(next_points) == 0:
+    probability = np.asarray(probability, np.float32)
+    moving = probability > 0.0
+    if not moving.any() or radius <= 0 or len(next_points) == 0:
         return prior
-    moved = np.asarray(points, np.float64)[carried, :3] + np.asarray(flow, np.float64)[carried]
-    found = nearest(moved, np.asarray(next_points, np.float64)[:, :3], radius)
+    moved = np.asarray(points, np.float64)[:, :3] + np.asarray(flow, np.float64)
+    following = np.asarray(next_points, np.float64)[:, :3]
+    # only the surroundings of the moving points matter: there, the nearest moved point of any kind decides
+    near_moving = nearest(moved[moving], moved, 2.0 * radius)
+    around = np.flatnonzero(np.isfinite(near_moving.distance))
+    candidates = np.flatnonzero(np.isfinite(nearest(moved[moving], following, radius).distance))
+    if candidates.size == 0:
+        return prior
+    found = nearest(moved[around], following[candidates], radius)
     hit = np.isfinite(found.distance)
-    prior[hit] = np.asarray(probability, np.float32)[carried[found.index[hit]]]
+    prior[candidates[hit]] = probability[around[found.index[hit]]]
     return prior
 
 
