@@ -14,7 +14,8 @@ class RegistrationConfig(Section):
     A coarse stage converges on a few random points; the refinement uses many, since with sparse scans the
     sampling noise, not convergence, limits the accuracy."""
 
-    source_points: int = Field(1024, ge=16, description="random source points of the coarse stages")
+    source_points: int = Field(2048, ge=16, description="random source points of the coarse stages (the height, weakly "
+                               "held by scans without a ground, needs more than the rest)")
     max_distances: tuple[float, ...] = Field((2.0,), description="correspondence distance (m) of each coarse stage")
     iterations: int = Field(20, ge=1, description="most ICP iterations per coarse stage")
     refine_points: int = Field(8192, ge=16, description="random source points of the refinement")

@@ -29,6 +29,9 @@ class RigidConfig(Section):
     split_voxel: float = Field(0.25, ge=0.0, description="a cluster that stays still although parts of it changed is "
                                "clustered again with this voxel (m), so a walker beside a parked car gets its own motion "
                                "(0: never)")
+    split_by_mask: bool = Field(False, description="the mask's dynamic points form clusters apart from the rest of "
+                                "their component (off: a carried mask misses the parts of an object it has newly shown, "
+                                "which then stayed behind)")
     min_cluster_points: int = Field(15, ge=3, description="points needed in each scan to register a cluster")
     min_masked_points: int = Field(3, ge=2, description="points needed in each scan for a cluster the mask calls dynamic")
     max_speed: float = Field(30.0, gt=0.0, description="fastest object (m/s)")
@@ -121,8 +124,8 @@ class RigidFlowEstimator:
         self.state: PairState | None = None
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
-        """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration and clustered
-        apart from the rest."""
+        """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration, and clusters the
+        mask calls dynamic need fewer points and less evidence to move."""
         state = self.pair_state(pc1, pc2)
         pair = state.pair
         masked = None if mask is None else check_mask(mask, pair.pc1.shape[0])[pair.sample1.indices]
@@ -134,9 +137,9 @@ class RigidFlowEstimator:
         # 1. ego motion from the points the mask does not call dynamic (robust kernel for the ones it misses)
         ego = self.ego_motion(state, dynamic)
         compensated = transform_points(ego, points1)
-        # 2. cluster the non-ground points of both scans together, the mask's dynamic points apart from the rest
+        # 2. cluster the non-ground points of both scans together (optionally the mask's dynamic points apart)
         clusters = joint_clusters(compensated[above1], points2[above2], self.config.cluster_voxel,
-                                  None if dynamic is None else dynamic[above1])
+                                  None if dynamic is None or not self.config.split_by_mask else dynamic[above1])
         # 3. rigid motion of each cluster (histogram-initialised ICP, kept only where it explains the data); clusters
         #    that stay still although parts of them changed are clustered finer and tried again
         belief = None if masked is None else masked[above1]
