@@ -99,7 +99,6 @@ class PairState:
     matcher: ScanMatcher
     source: np.ndarray
     order: np.ndarray
-    height1: np.ndarray
     above1: np.ndarray
     above2: np.ndarray
     surfaces: Surfaces  # scan t+1 above the ground
@@ -168,8 +167,7 @@ class RigidFlowEstimator:
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
         matcher = ScanMatcher(target, self.registration)
         order = np.random.default_rng(self.registration.seed).permutation(source.shape[0])
-        height1 = height_above_ground(points1, self.preprocess.ground_cell)
-        above1 = height1 >= self.preprocess.ground_height
+        above1 = height_above_ground(points1, self.preprocess.ground_cell) >= self.preprocess.ground_height
         above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
         if self.preprocess.remove_ground or not shows_ground(matcher, ~above2):
             above1, above2 = np.ones_like(above1), np.ones_like(above2)  # the lowest points are objects' bottoms
@@ -179,7 +177,7 @@ class RigidFlowEstimator:
         ground1 = None
         if self.preprocess.remove_ground:  # whole scans: points on the ground never take an object's motion
             ground1 = height_above_ground(pair.pc1, self.preprocess.ground_cell) < self.config.ground_clearance
-        self.state = PairState(key, pair, matcher, source, order, height1, above1, above2, above, every, ground1)
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
