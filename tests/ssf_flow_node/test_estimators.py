@@ -59,11 +59,21 @@ def test_rigid_recovers_both_box_motions(pair, results):
         assert np.median(np.linalg.norm(results["rigid"].flow[on] - pair.flow[on], axis=1)) < 0.1
 
 
-def test_rigid_mask_settles_what_the_points_leave_open():
-    """Box 1 slides along its own length: the sparse points alone do not prove it moves, the mask does."""
+def test_rigid_proves_a_box_sliding_along_its_length_from_its_ends():
+    """Box 1 slides along its own length: its sides stay on their planes, but its ends leave them."""
     pair = synthetic_pair(seed=1, agents=2, ego_step=1.0)
-    estimator = make_estimator("rigid")
+    result = make_estimator("rigid").estimate(pair.pc1, pair.pc2).flow
+    box1 = pair.instance1 == 1
+    assert np.linalg.norm((pair.flow - rigid_flow(pair.ego, pair.pc1))[box1].mean(axis=0)) > 0.9
+    assert flow_metrics(result[box1], pair.flow[box1]).epe3d < 0.15
+
+
+def test_rigid_mask_settles_what_the_points_leave_open():
+    """Box 1 has fewer points than a cluster needs to be registered from the points alone (min_cluster_points above
+    its size); the mask calling it dynamic is enough."""
+    pair = synthetic_pair(seed=1, agents=2, ego_step=1.0)
     box1, box2 = pair.instance1 == 1, pair.instance1 == 2
+    estimator = make_estimator("rigid", build(FlowConfig, {"rigid": {"min_cluster_points": 4 * int(box1.sum())}}))
     static_flow = rigid_flow(pair.ego, pair.pc1)
     without = estimator.estimate(pair.pc1, pair.pc2).flow
     assert np.linalg.norm(without[box1] - static_flow[box1], axis=1).mean() < 0.1  # taken for static structure

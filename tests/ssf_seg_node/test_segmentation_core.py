@@ -81,7 +81,7 @@ def test_obstacles_recover_box_and_velocity():
     side = np.column_stack([rng.uniform(-length / 2, length / 2, 300), np.full(300, -width / 2), rng.uniform(0, 1.5, 300)])
     points = side + [12.0, 5.0, 0.0]  # only the side towards the sensor is seen
     ego = make_pose(1.0, 0.0, 0.0, 0.0)  # the sensor moves 1 m forward per frame
-    velocity = np.array([0.0, 5.0, 0.0])
+    velocity = np.array([5.0, 0.0, 0.0])  # along its length, as vehicles drive
     dt = 0.1
     flow = transform_points(ego, points + velocity * dt) - points
     segmentation = Segmentation(np.ones(300, np.float32), np.ones(300, np.uint8), np.ones(300, np.int32))
@@ -92,6 +92,21 @@ def test_obstacles_recover_box_and_velocity():
     np.testing.assert_allclose(obstacles.sizes[0, :2], [length, width], atol=0.05)
     assert obstacles.kinds[0] == ObstacleKind.VEHICLE and obstacles.point_counts[0] == 300
     assert np.all(np.linalg.eigvalsh(obstacles.velocity_covariances[0]) > 0)
+
+
+def test_a_vehicle_seen_end_on_gets_its_length_along_its_motion():
+    rng = np.random.default_rng(1)
+    rear = np.column_stack([np.full(200, 20.0), rng.uniform(-0.9, 0.9, 200), rng.uniform(0.0, 1.4, 200)])
+    velocity = np.array([4.0, 0.0, 0.0])  # driving away from the sensor: only its rear face is seen
+    dt = 0.1
+    flow = np.tile(velocity * dt, (200, 1))
+    segmentation = Segmentation(np.ones(200, np.float32), np.ones(200, np.uint8), np.ones(200, np.int32))
+    obstacles = extract_obstacles(rear, flow, segmentation, np.eye(4), dt, 0, "lidar", ObstacleConfig())
+    assert obstacles.kinds[0] == ObstacleKind.VEHICLE  # 1.8 m wide: no pedestrian
+    np.testing.assert_allclose(obstacles.sizes[0, :2], [4.4, 1.8], atol=0.05)
+    assert abs(np.cos(obstacles.yaws[0])) > 0.99  # length along x, the direction of travel
+    np.testing.assert_allclose(obstacles.centres[0, :2], [22.2, 0.0], atol=0.05)  # grown away from the sensor
+    np.testing.assert_allclose(obstacles.velocities[0], velocity, atol=1e-6)
 
 
 def test_growing_keeps_the_seen_side_in_place():

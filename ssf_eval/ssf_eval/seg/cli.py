@@ -42,6 +42,7 @@ def register(groups: CommandGroups) -> None:
         "ignored), obstacle position and velocity errors (medians), missed moving objects and phantoms per 10 "
         "frames, ms per scan, loop iterations.")
     add_pair_source_options(evaluate, default_frames=10)
+    add_seeds_option(evaluate)
     evaluate.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), metavar="M",
                           help=f"segmenters and/or 'ssf' (default: {' '.join(DEFAULT_METHODS)}; missing weights are skipped)")
     evaluate.add_argument("--inputs", nargs="+", default=["both"], choices=("points", "flow", "both"),
@@ -57,6 +58,7 @@ def register(groups: CommandGroups) -> None:
         "iteration, EPE3D of all and dynamic points, moving-class IoU, accuracy and the share of frames converged "
         "(frames that converged earlier keep their answer). --plot draws the paper's ablation figure.")
     add_pair_source_options(fusion, default_frames=10)
+    add_seeds_option(fusion)
     fusion.add_argument("--iterations", type=int, default=None, help="N_iter (default 5)")
     add_eval_outputs(fusion)
     fusion.add_argument("--plot", type=Path, help="PNG of error and IoU against the iteration")
@@ -69,6 +71,29 @@ def register(groups: CommandGroups) -> None:
     bench_fusion = groups.bench.add_parser("fusion", help="ms per converged scan of the fusion loop (and per iteration)")
     add_bench_options(bench_fusion)
     bench_fusion.set_defaults(func=run_bench_fusion)
+
+
+def add_seeds_option(parser: argparse.ArgumentParser) -> None:
+    """--seeds: several simulator episodes, each a sequence of consecutive pairs, pooled in one table."""
+    parser.add_argument("--seeds", type=int, nargs="+", metavar="N",
+                        help="simulator seeds to pool (each its own sequence of --frames pairs); overrides --seed")
+
+
+def sequences_from_args(args: argparse.Namespace):
+    """The pairs of every requested seed, one after the other, the indices where a sequence starts, and a source
+    description."""
+    import numpy as np
+
+    from ssf_eval.sources import PairSet, pairs_from_args
+
+    seeds = args.seeds if args.seeds and args.scenario else [args.seed]
+    sets = [pairs_from_args(argparse.Namespace(**{**vars(args), "seed": seed})) for seed in seeds]
+    pairs = [pair for pairs in sets for pair in pairs.pairs]
+    starts = set(np.cumsum([0] + [len(one.pairs) for one in sets[:-1]]).tolist())
+    if len(sets) == 1:
+        return sets[0], starts
+    description = f"scenario {args.scenario} seeds {' '.join(map(str, seeds))}, {len(pairs)} pairs"
+    return PairSet(pairs, description, {**sets[0].source, "seed": seeds, "pairs": len(pairs)}), starts
 
 
 def add_perception_options(parser: argparse.ArgumentParser) -> None:
@@ -182,7 +207,6 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     from ssf_eval.pipeline import SsfPerception
     from ssf_eval.results import write_result
     from ssf_eval.seg.evaluate import FlowInput, evaluate_segmentation, format_seg_table
-    from ssf_eval.sources import pairs_from_args
     from ssf_flow_node.core.estimator import make_estimator
 
     if args.json:
@@ -191,7 +215,7 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     config = perception_config(args)
     methods = build_methods(args, config)
     perception = SsfPerception(config, args.device) if any(m.segmenter is None for m in methods) else None
-    source = pairs_from_args(args)
+    source, starts = sequences_from_args(args)
     estimator = make_estimator(config=config.flow, device=args.device)
 
     def flow_of(pair):
@@ -203,7 +227,8 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     print(f"segmenting {len(source.pairs)} pairs ({source.description}) with {len(methods)} methods, flow: {args.flow}",
           file=sys.stderr)
     rows = evaluate_segmentation(methods, source.pairs, flow_of, perception, config,
-                                 progress=lambda done: print(f"  pair {done}/{len(source.pairs)}", file=sys.stderr, flush=True))
+                                 progress=lambda done: print(f"  pair {done}/{len(source.pairs)}", file=sys.stderr, flush=True),
+                                 sequence_starts=starts)
     print(f"segmentation on {len(source.pairs)} pairs ({source.description}), flow: {args.flow}")
     print(format_seg_table(rows))
     if args.json:
@@ -223,7 +248,6 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
     from ssf_eval.pipeline import SsfPerception
     from ssf_eval.results import write_result
     from ssf_eval.seg.evaluate import evaluate_iterations, format_iteration_table, plot_iterations
-    from ssf_eval.sources import pairs_from_args
 
     for path, what in ((args.json, "result file"), (args.plot, "picture")):
         if path is not None:
@@ -231,9 +255,9 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     config = perception_config(args, **{"fusion.max_iterations": args.iterations})
     perception = SsfPerception(config, args.device)
-    source = pairs_from_args(args)
+    source, starts = sequences_from_args(args)
     rows, taken = evaluate_iterations(perception, source.pairs, progress=lambda done: print(
-        f"  pair {done}/{len(source.pairs)}", file=sys.stderr, flush=True))
+        f"  pair {done}/{len(source.pairs)}", file=sys.stderr, flush=True), sequence_starts=starts)
     title = f"fusion loop ({config.flow.estimator} ⇄ {config.seg.method}) on {len(source.pairs)} pairs ({source.description})"
     print(title)
     print(format_iteration_table(rows))

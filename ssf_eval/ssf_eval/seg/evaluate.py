@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterable, NamedTuple, Sequence
+from typing import Callable, Collection, Iterable, NamedTuple, Sequence
 
 import numpy as np
 
@@ -46,8 +46,11 @@ class MethodScores(NamedTuple):
 
 def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], flow_of: Callable[[ScanPair], FlowInput],
                           perception: SsfPerception | None, config: PerceptionConfig,
-                          progress: Callable[[int], None] | None = None) -> list[MethodScores]:
-    """Every method on every pair: segmenters on the pair's given flow, the loop (SSF) on the scans themselves."""
+                          progress: Callable[[int], None] | None = None,
+                          sequence_starts: Collection[int] = (0,)) -> list[MethodScores]:
+    """Every method on every pair: segmenters on the pair's given flow, the loop (SSF) on the scans themselves (pairs
+    are consecutive except where a sequence starts, so the loop carries each segmentation to the next pair as its
+    preliminary mask)."""
     counts: dict[str, list[SegCounts]] = {m.label: [] for m in methods}
     errors: dict[str, list[ObstacleErrors]] = {m.label: [] for m in methods}
     times: dict[str, list[float]] = {m.label: [] for m in methods}
@@ -58,7 +61,7 @@ def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], 
             started = time.perf_counter()
             if method.segmenter is None:
                 assert perception is not None
-                result = perception.perceive(pair.pc1, pair.pc2)
+                result = perception.perceive(pair.pc1, pair.pc2, follows=index not in sequence_starts)
                 segmentation, obstacles, rounds = result.fusion.segmentation, result.obstacles, result.fusion.iterations
                 times[method.label].append((time.perf_counter() - started) * 1e3)
             else:
@@ -106,8 +109,10 @@ class IterationScores(NamedTuple):
 
 
 def evaluate_iterations(perception: SsfPerception, pairs: Iterable[ScanPair],
-                        progress: Callable[[int], None] | None = None) -> tuple[list[IterationScores], list[int]]:
-    """Flow EPE and segmentation IoU after every iteration of the loop, and the iterations each frame took."""
+                        progress: Callable[[int], None] | None = None,
+                        sequence_starts: Collection[int] = (0,)) -> tuple[list[IterationScores], list[int]]:
+    """Flow EPE and segmentation IoU after every iteration of the loop (with the temporal prior of the consecutive
+    pairs), and the iterations each frame took."""
     iterations = perception.config.fusion.max_iterations
     flow_scores: list[list] = [[] for _ in range(iterations)]
     seg: list[list[SegCounts]] = [[] for _ in range(iterations)]
@@ -115,7 +120,7 @@ def evaluate_iterations(perception: SsfPerception, pairs: Iterable[ScanPair],
     taken: list[int] = []
     converged_at: list[int | None] = []
     for index, pair in enumerate(pairs):
-        result = perception.loop.run(pair.pc1, pair.pc2)
+        result = perception.perceive(pair.pc1, pair.pc2, follows=index not in sequence_starts).fusion
         taken.append(result.iterations)
         converged_at.append(result.iterations - 1 if result.converged else None)
         for n in range(iterations):

@@ -48,10 +48,12 @@ def prepare(pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None, config: P
     return PreparedPair(xyz1, xyz2, sample1, sample2, None if mask is None else mask[sample1.indices])
 
 
-def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, config: PreprocessConfig) -> FlowResult:
+def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, config: PreprocessConfig,
+           still: np.ndarray | None = None) -> FlowResult:
     """Flow for every point of scan t: the ego motion, plus the sampled points' motion relative to it carried to
-    the points near them."""
+    the points near them (except the `still` ones, e.g. the ground)."""
     ego_flow = rigid_flow(ego, pair.pc1)
     relative = sample_flow.astype(np.float32) - ego_flow[pair.sample1.indices]
-    flow = ego_flow + propagate_motion(pair.pc1, pair.sample1, relative, config.propagate_k, config.propagate_radius)
+    flow = ego_flow + propagate_motion(pair.pc1, pair.sample1, relative, config.propagate_k, config.propagate_radius,
+                                       still)
     return FlowResult(flow=flow, ego=np.asarray(ego, dtype=np.float64))

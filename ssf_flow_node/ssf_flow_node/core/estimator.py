@@ -17,10 +17,12 @@ from ssf_flow_node.core.rigid import RigidConfig, RigidFlowEstimator
 
 ESTIMATORS = ("zero", "ego", "rigid", "asf")
 
-# Defaults for whole LiDAR scans (the node, `ssf flow estimate`): the N points go to non-ground structure within
-# 35 m, the paper's protocol, and every other point gets its flow from them. Pairs already cut that way (`ssf eval
-# flow`) use the plain defaults.
-WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 35.0}}
+# Defaults for whole LiDAR scans (the node, `ssf flow estimate`): the N points go to non-ground structure at any range,
+# thinned where the scan is dense so that far objects keep theirs, a few ground points join the ego registration (they
+# pin its height, so a short schedule converges), and every other point gets its flow from them. Pairs already cut
+# (`ssf eval flow`) use the plain defaults.
+WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 1000.0, "range_balance": True},
+              "registration": {"source_points": 1024, "refine_iterations": 20, "tolerance": 1e-4}}
 
 
 class AsfRunConfig(Section):

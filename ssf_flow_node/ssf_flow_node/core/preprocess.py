@@ -24,6 +24,10 @@ class PreprocessConfig(Section):
     min_range: float = Field(0.0, ge=0.0, description="points closer to the sensor are dropped (m)")
     max_range: float = Field(60.0, gt=0.0, description="points farther from the sensor are dropped (m)")
     remove_ground: bool = Field(False, description="spend the N points on non-ground structure only")
+    ego_ground_points: int = Field(2048, ge=0, description="where the ground is removed, this many ground points still "
+                                   "join the ego registration (the ground pins height, roll and pitch)")
+    range_balance: bool = Field(False, description="sample with a weight growing with the squared range, so that far "
+                                "objects keep their few points and near surfaces are thinned (whole scans)")
     ground_cell: float = Field(2.0, gt=0.0, description="grid cell (m) of the ground height estimate")
     ground_height: float = Field(0.3, gt=0.0, description="points this far above the local ground are not ground (m)")
     propagate_k: int = Field(3, ge=1, le=32, description="neighbours for inverse-distance flow propagation")
@@ -33,10 +37,12 @@ class PreprocessConfig(Section):
 
 
 class Sample(NamedTuple):
-    """Points chosen from a scan: indices into the scan and their coordinates."""
+    """Points chosen from a scan: indices into the scan and their coordinates (and, where the ground was removed, a
+    few ground points for the ego registration)."""
 
     indices: np.ndarray  # (M,) int64
     points: np.ndarray  # (M, 3) float32
+    ground: np.ndarray | None = None  # (G,) int64 indices of ground points
 
 
 def check_scan(points: np.ndarray, name: str) -> np.ndarray:
@@ -76,24 +82,38 @@ def crop(points: np.ndarray, config: PreprocessConfig) -> np.ndarray:
 def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Generator) -> Sample:
     """Crop and reduce a scan to at most `config.points` points, remembering where each came from."""
     candidates = crop(points, config)
+    ground = None
     if config.remove_ground and candidates.size:
-        candidates = candidates[~ground_mask(points[candidates], config.ground_cell, config.ground_height)]
+        flat = ground_mask(points[candidates], config.ground_cell, config.ground_height)
+        ground = candidates[flat]
+        ground = ground[rng.permutation(ground.size)[: config.ego_ground_points]]
+        candidates = candidates[~flat]
     if candidates.size == 0:
         raise DataError(f"scan has no points between {config.min_range} m and {config.max_range} m")
+    if config.range_balance and candidates.size > config.points:
+        candidates = np.sort(candidates[range_balanced(points[candidates], config.points, rng)])
     candidates = candidates[sample_indices(points[candidates], config.points, rng, config.sampling, config.voxel_size)]
-    return Sample(candidates.astype(np.int64), points[candidates])
+    return Sample(candidates.astype(np.int64), points[candidates], None if ground is None else np.sort(ground))
+
+
+def range_balanced(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """`count` indices drawn without replacement with weights growing with the squared horizontal range (a LiDAR's
+    point density falls with it), by exponential keys (Efraimidis-Spirakis)."""
+    weight = np.maximum(np.einsum("ij,ij->i", points[:, :2], points[:, :2]), 1e-6)
+    keys = rng.exponential(size=len(points)) / weight
+    return np.argpartition(keys, count - 1)[:count]
 
 
 def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k: int = 3,
-                     radius: float = np.inf) -> np.ndarray:
+                     radius: float = np.inf, still: np.ndarray | None = None) -> np.ndarray:
     """Motion relative to the scene for every point of a scan: exact on sampled points, interpolated on the
-    others near sampled points that move, zero elsewhere."""
+    others near sampled points that move (unless `still`), zero elsewhere."""
     motion = np.zeros((points.shape[0], 3), dtype=np.float32)
     motion[sample.indices] = relative
     moving = np.abs(relative).max(axis=1) > 0.0
     if not moving.any() or sample.indices.size == points.shape[0]:
         return motion
-    rest = np.ones(points.shape[0], dtype=bool)
+    rest = np.ones(points.shape[0], dtype=bool) if still is None else ~np.asarray(still, bool)
     rest[sample.indices] = False
     rest = np.flatnonzero(rest)
     gap, _ = cKDTree(sample.points[moving]).query(points[rest], distance_upper_bound=radius)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import hashlib
+from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
@@ -12,47 +14,71 @@ from ssf_common.config import Section
 from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
+from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
 from ssf_common.geometry.se3 import transform_points, yaw_translate
-from ssf_flow_node.core.base import FlowResult, finish, prepare
-from ssf_flow_node.core.preprocess import PreprocessConfig
+from ssf_flow_node.core.base import FlowResult, PreparedPair, finish, prepare
+from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
 from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
 
-class RigidConfig(Section):
-    """Clustering and per-cluster registration of the learning-free estimator."""
 
+class RigidConfig(Section):
+    """Clustering and per-cluster registration of the learning-free estimator (speeds in m/s, turns in rad/s)."""
+
+    dt: float = Field(0.1, gt=0.0, description="time between the two scans (s)")
     cluster_voxel: float = Field(0.5, gt=0.0, description="voxel edge (m) of the connected-component clustering")
-    min_cluster_points: int = Field(10, ge=3, description="points needed in each scan to register a cluster")
+    split_voxel: float = Field(0.25, ge=0.0, description="a cluster that stays still although parts of it changed is "
+                               "clustered again with this voxel (m), so a walker beside a parked car gets its own motion "
+                               "(0: never)")
+    split_by_mask: bool = Field(False, description="the mask's dynamic points form clusters apart from the rest of "
+                                "their component (off: a carried mask misses the parts of an object it has newly shown, "
+                                "which then stayed behind)")
+    min_cluster_points: int = Field(15, ge=3, description="points needed in each scan to register a cluster")
     min_masked_points: int = Field(3, ge=2, description="points needed in each scan for a cluster the mask calls dynamic")
-    max_step: float = Field(3.0, gt=0.0, description="largest object displacement per frame (m)")
+    max_speed: float = Field(30.0, gt=0.0, description="fastest object (m/s)")
     histogram_bin: float = Field(0.3, gt=0.0, description="bin (m) of the translation histogram")
     histogram_points: int = Field(32, ge=4, description="points per scan and cluster in the translation histogram")
     histogram_peaks: int = Field(4, ge=1, description="histogram peaks tried as initial translations")
     point_weight: float = Field(0.3, ge=0.0, description="weight of point-to-point next to point-to-plane residuals")
     plane: bool = Field(True, description="register objects point-to-plane (normals of scan t+1) instead of point-to-point")
-    max_yaw: float = Field(0.1, ge=0.0, description="largest object rotation per frame (rad)")
+    max_yaw_rate: float = Field(1.0, ge=0.0, description="fastest object turn (rad/s)")
     max_extent: float = Field(12.0, gt=0.0, description="larger clusters (xy extent, m) are static structure unless the mask says otherwise")
     icp_points: int = Field(128, ge=3, description="points per cluster in its ICP (random, for speed on big clusters)")
     icp_iterations: int = Field(5, ge=1, description="iterations of the batched per-cluster ICP")
     icp_gates: tuple[float, float] = Field((1.0, 0.3), description="correspondence gate (m), first and last iteration")
     residual_cap: float = Field(1.0, gt=0.0, description="nearest-neighbour residuals are truncated here (m)")
-    min_gain: float = Field(0.5, ge=0.0, le=1.0, description="share of the static hypothesis' residual a motion must "
-                            "remove (where the mask does not call the cluster dynamic)")
+    min_gain: float = Field(0.3, ge=0.0, le=1.0, description="share of the static hypothesis' distance to the surfaces "
+                            "of scan t+1 a motion must remove (where the mask does not call the cluster dynamic)")
+    min_point_gain: float = Field(0.5, ge=0.0, le=1.0, description="or: share of its distance to the points")
+    support_gain: float = Field(0.1, ge=0.0, le=1.0, description="a motion proven by the surfaces must also bring the "
+                                "points this share closer (sliding along a wall does not)")
+    mask_gain: float = Field(0.1, ge=0.0, le=1.0, description="the same share where the mask calls the cluster dynamic")
+    surface_noise: float = Field(2.0, ge=0.0, description="a cluster standing still must miss the surfaces of scan t+1 by "
+                                 "more than this many times the scene's median miss, and its surfaces' own roughness, "
+                                 "before its motion counts")
     inlier_gate: float = Field(0.3, gt=0.0, description="a point is explained by scan t+1 within this distance (m)")
     min_explained_gain: float = Field(0.25, ge=0.0, le=1.0, description="or: share of a cluster's points a motion must "
                                       "newly explain")
-    min_motion: float = Field(0.05, ge=0.0, description="cluster motions below this (m) are static")
-    attach_height: float = Field(0.08, ge=0.0, description="points below ground_height but above this may belong to objects (m)")
-    attach_distance: float = Field(0.6, ge=0.0, description="such low points this close to a moving cluster move with it (m)")
+    max_unexplained: float = Field(0.2, ge=0.0, le=1.0, description="a motion must explain all but this share of a "
+                                   "cluster's points")
+    min_speed: float = Field(0.5, ge=0.0, description="clusters slower than this (m/s) are static")
+    ground_clearance: float = Field(0.08, ge=0.0, description="where the ground is split off, points this close above "
+                                    "it (m) are ground and keep the scene's motion; higher ones near a mover share it")
+    attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
+                                   "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
+    ego_refit: float = Field(0.02, ge=0.0, le=1.0, description="on the same pair again, the ego motion is refined only "
+                             "when the mask changed on more than this share of its points (the robust kernel copes "
+                             "with the rest)")
 
 
 class Clusters(NamedTuple):
-    """Cluster label per non-ground point of each scan (-1: none) and the number of clusters."""
+    """Cluster label per non-ground point of scan t (-1: none), component label per point of scan t+1, the number of
+    clusters, and each cluster's component in scan t+1 (clusters of scan t may split one joint component)."""
 
     labels1: np.ndarray
     labels2: np.ndarray
     count: int
+    parent: np.ndarray
 
 
 class ClusterMotions(NamedTuple):
@@ -61,6 +87,28 @@ class ClusterMotions(NamedTuple):
     yaw: np.ndarray
     translation: np.ndarray
     moving: np.ndarray
+
+
+@dataclass
+class PairState:
+    """What one scan pair keeps across the calls of the fusion loop: samples, target normals, ground split, the ego
+    fit's source points (the sample, then ground points) in a fixed random order, and the first ego motion found."""
+
+    key: bytes
+    pair: PreparedPair
+    matcher: ScanMatcher
+    source: np.ndarray
+    order: np.ndarray
+    above1: np.ndarray
+    above2: np.ndarray
+    surfaces: Surfaces  # scan t+1 above the ground
+    all_surfaces: Surfaces  # all of scan t+1
+    ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
+    base_ego: np.ndarray | None = None
+    base_dynamic: np.ndarray | None = None
+    motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
+    moved: np.ndarray | None = None  # the sampled points that motion moves
+    result: FlowResult | None = None  # the last estimate
 
 
 class RigidFlowEstimator:
@@ -72,64 +120,182 @@ class RigidFlowEstimator:
         self.preprocess = preprocess
         self.registration = registration
         self.config = config
+        self.state: PairState | None = None
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
-        """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration."""
-        pair = prepare(pc1, pc2, mask, self.preprocess)
+        """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration, and clusters the
+        mask calls dynamic need fewer points and less evidence to move."""
+        state = self.pair_state(pc1, pc2)
+        pair = state.pair
+        masked = None if mask is None else check_mask(mask, pair.pc1.shape[0])[pair.sample1.indices]
         points1, points2 = pair.sample1.points, pair.sample2.points
-        dynamic = None if pair.mask is None else pair.mask > self.config.mask_threshold
+        dynamic = None if masked is None else masked > self.config.mask_threshold
+        if dynamic is not None and state.result is not None and np.array_equal(dynamic, state.moved):
+            return state.result  # the mask calls dynamic just what the last estimate moved: nothing new to use
+        above1, above2 = state.above1, state.above2
         # 1. ego motion from the points the mask does not call dynamic (robust kernel for the ones it misses)
-        matcher = ScanMatcher(points2, self.registration)
-        ego = matcher.align(points1 if dynamic is None else points1[~dynamic])
+        ego = self.ego_motion(state, dynamic)
         compensated = transform_points(ego, points1)
-        # 2. drop the ground, cluster the rest of both scans together
-        height1 = height_above_ground(points1, self.preprocess.ground_cell)
-        above1 = height1 >= self.preprocess.ground_height
-        above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
-        clusters = joint_clusters(compensated[above1], points2[above2], self.config.cluster_voxel)
-        # 3. rigid motion of each cluster, histogram-initialised ICP, kept only where it explains the data
-        normals2 = matcher.normals()[above2] if self.config.plane else None
-        motions = cluster_motions(compensated[above1], points2[above2], clusters, self.config,
-                                  None if dynamic is None else pair.mask[above1], normals2)
-        # 4. every point moves with its cluster (ground-flagged points touching a moving cluster too), or with the scene
+        # 2. cluster the non-ground points of both scans together (optionally the mask's dynamic points apart)
+        clusters = joint_clusters(compensated[above1], points2[above2], self.config.cluster_voxel,
+                                  None if dynamic is None or not self.config.split_by_mask else dynamic[above1])
+        # 3. rigid motion of each cluster (histogram-initialised ICP, kept only where it explains the data); clusters
+        #    that stay still although parts of them changed are clustered finer and tried again
+        belief = None if masked is None else masked[above1]
+        previous = None if state.motion is None else state.motion[above1]
+        clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous)
+        # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
+        #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
         labels[above1] = clusters.labels1
-        low = ~above1 & (height1 > self.config.attach_height)
-        labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions.moving,
-                                       self.config.attach_distance)
+        low = np.flatnonzero(~above1)
+        labels[low] = attach_to_moving(compensated[low], compensated[above1], clusters.labels1, motions,
+                                       state.all_surfaces, self.config)
         moved = apply_motions(compensated, labels, motions)
-        return finish(pair, moved - points1, ego, self.preprocess)
+        state.motion = moved - compensated
+        state.moved = np.abs(state.motion).max(axis=1) > 0.0
+        state.result = finish(pair, moved - points1, ego, self.preprocess, state.ground1)
+        return state.result
+
+    def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
+        """The cached work on this pair of scans (the fusion loop asks for the same pair again), or a fresh one."""
+        key = fingerprint(pc1, pc2)
+        if self.state is not None and self.state.key == key:
+            return self.state
+        pair = prepare(pc1, pc2, None, self.preprocess)
+        points1, points2 = pair.sample1.points, pair.sample2.points
+        source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
+        matcher = ScanMatcher(target, self.registration)
+        order = np.random.default_rng(self.registration.seed).permutation(source.shape[0])
+        above1 = height_above_ground(points1, self.preprocess.ground_cell) >= self.preprocess.ground_height
+        above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
+        if self.preprocess.remove_ground or not shows_ground(matcher, ~above2):
+            above1, above2 = np.ones_like(above1), np.ones_like(above2)  # the lowest points are objects' bottoms
+        normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
+        every = surfaces_of(points2, normals)
+        above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
+        ground1 = None
+        if self.preprocess.remove_ground:  # whole scans: points on the ground never take an object's motion
+            ground1 = height_above_ground(pair.pc1, self.preprocess.ground_cell) < self.config.ground_clearance
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1)
+        return self.state
+
+    def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
+        """Ego motion from the points not called dynamic: a full alignment the first time on a pair, then a
+        refinement from it where the mask changed enough (the same mask always gives the same answer)."""
+        keep = np.ones(state.source.shape[0], bool)
+        if dynamic is not None:
+            keep[: dynamic.size] = ~dynamic
+        source = state.source[state.order[keep[state.order]]]
+        if state.base_ego is None:
+            state.base_ego = state.matcher.align(source, ordered=True)
+            state.base_dynamic = None if dynamic is None else dynamic.copy()
+            return state.base_ego
+        sampled = state.pair.sample1.indices.size
+        before = np.zeros(sampled, bool) if state.base_dynamic is None else state.base_dynamic
+        now = np.zeros(sampled, bool) if dynamic is None else dynamic
+        changed = np.count_nonzero(before != now) / max(keep.size, 1)
+        return state.base_ego if changed <= self.config.ego_refit else state.matcher.refine(source, state.base_ego, ordered=True)
 
 
-def joint_clusters(points1: np.ndarray, points2: np.ndarray, voxel: float) -> Clusters:
-    """Connected components of the occupied voxels of both (ego-compensated) scans together."""
-    labels, count = voxel_components(np.concatenate([points1, points2]), voxel)
-    return Clusters(labels[: points1.shape[0]], labels[points1.shape[0]:], count)
+def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
+    """Whether the lowest points of the sampled scan t+1 lie mostly on level surfaces (a ground), rather than being the
+    bottoms of walls and objects of a scan whose ground was cut away."""
+    level = np.abs(matcher.normals()[: low.size, 2]) > 0.9
+    return bool(low.any() and level[low].mean() > 0.5)
+
+
+def with_ground(points: np.ndarray, sample: Sample) -> np.ndarray:
+    """The sampled points of a scan followed by its ground points kept for the ego registration."""
+    return sample.points if sample.ground is None else np.concatenate([sample.points, points[sample.ground]])
+
+
+class Surfaces(NamedTuple):
+    """Points of scan t+1 to register against: their normals (None: point-to-point), a KD-tree, and per point how far
+    its nearest neighbour lies off its surface (its roughness)."""
+
+    points: np.ndarray
+    normals: np.ndarray | None
+    tree: cKDTree
+    roughness: np.ndarray
+
+
+def surfaces_of(points: np.ndarray, normals: np.ndarray | None) -> Surfaces:
+    """Searchable surfaces of scan t+1's points."""
+    tree = cKDTree(points)
+    gap, index = tree.query(points, k=2) if len(points) > 1 else (np.zeros((len(points), 2)), np.zeros((len(points), 2), int))
+    rough = gap[:, 1] if normals is None else np.abs(np.einsum("ij,ij->i", points[index[:, 1]] - points, normals))
+    return Surfaces(points, normals, tree, rough)
+
+
+def fingerprint(pc1: np.ndarray, pc2: np.ndarray) -> bytes:
+    """A short digest that tells one scan pair from another (shapes and a stride of their coordinates)."""
+    digest = hashlib.blake2b(digest_size=16)
+    for cloud in (pc1, pc2):
+        array = np.asarray(cloud)
+        digest.update(repr(array.shape).encode())
+        digest.update(np.ascontiguousarray(array[:: max(1, len(array) // 1024)]).tobytes())
+    return digest.digest()
+
+def joint_clusters(points1: np.ndarray, points2: np.ndarray, voxel: float, groups1: np.ndarray | None = None) -> Clusters:
+    """Connected components of the occupied voxels of both (ego-compensated) scans together; points of scan t in
+    different groups (the mask's dynamic and static points) get clusters of their own within a component."""
+    labels, _ = voxel_components(np.concatenate([points1, points2]), voxel)
+    labels1, labels2 = labels[: points1.shape[0]], labels[points1.shape[0]:]
+    groups = np.zeros(points1.shape[0], np.int64) if groups1 is None else np.asarray(groups1, np.int64)
+    codes, inverse = np.unique(labels1 * 2 + groups, return_inverse=True)
+    return Clusters(inverse.reshape(-1).astype(np.int64), labels2.astype(np.int64), int(codes.size), codes // 2)
+
+
+def priorities(count: int, stream: int = 0) -> np.ndarray:
+    """A fixed random number per point (the same for the same number of points: one pair's samples)."""
+    return np.random.default_rng([count, stream]).random(count)
+
+
+def ranked_per_label(labels: np.ndarray, active: np.ndarray, per_label: int, priority: np.ndarray) -> np.ndarray:
+    """Up to `per_label` point indices of each active label, those of lowest priority value: a cluster picks the same
+    points whatever the other clusters are, so the loop's estimates move only where the clusters change."""
+    candidates = np.flatnonzero((labels >= 0) & active[np.maximum(labels, 0)])
+    ordered = candidates[np.lexsort((priority[candidates], labels[candidates]))]
+    sorted_labels = labels[ordered]
+    rank = np.arange(ordered.size) - np.searchsorted(sorted_labels, sorted_labels, side="left")
+    return ordered[rank < per_label]
+
+
+def component_count(clusters: Clusters) -> int:
+    """Number of joint components the clusters' scan t+1 labels refer to."""
+    return int(max(clusters.labels2.max(initial=-1), clusters.parent.max(initial=-1)) + 1)
 
 
 def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, active: np.ndarray,
-                         config: RigidConfig, tree: cKDTree, rng: np.random.Generator) -> np.ndarray:
-    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram."""
+                         config: RigidConfig, tree: cKDTree, previous: np.ndarray | None = None) -> np.ndarray:
+    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram, and the mean
+    motion its points had in the previous estimate on this pair."""
     count = clusters.count
-    picks1 = pick_per_label(clusters.labels1, active, config.histogram_points, rng)
-    picks2 = pick_per_label(clusters.labels2, active, config.histogram_points, rng)
-    candidates = [np.zeros((count, 3)), centroid_shift(points1, points2, clusters, count)]
+    picks1 = ranked_per_label(clusters.labels1, active, config.histogram_points, priorities(len(points1)))
+    present = np.zeros(component_count(clusters), bool)
+    present[clusters.parent[active]] = True
+    picks2 = ranked_per_label(clusters.labels2, present, config.histogram_points, priorities(len(points2), 1))
+    candidates = [np.zeros((count, 3)), centroid_shift(points1, points2, clusters)]
+    if previous is not None:
+        candidates.append(label_means(previous, clusters.labels1, count))
     if picks1.size and picks2.size:
         candidates += histogram_peaks(points1, points2, clusters, picks1, picks2, config)
     labels = clusters.labels1[picks1]
     shifts = np.stack(candidates)  # (candidates, clusters, 3)
     moved = (points1[picks1][None] + shifts[:, labels]).reshape(-1, 3)
     tries = np.repeat(np.arange(len(candidates)), labels.size) * count + np.tile(labels, len(candidates))
-    scores = fit_quality(moved, tries, tree, clusters.labels2, config, len(candidates) * count,
-                         np.tile(labels, len(candidates))).residual
+    scores = fit_quality(moved, tries, tree, clusters.labels2, np.tile(clusters.parent[labels], len(candidates)),
+                         config, len(candidates) * count).residual
     best = scores.reshape(len(candidates), count).argmin(axis=0)
     return shifts[best, np.arange(count)]
 
 
-def centroid_shift(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, count: int) -> np.ndarray:
-    """Per cluster, the horizontal shift between its centroids in the two scans."""
-    shift = np.zeros((count, 3))
-    shift[:, :2] = label_means(points2[:, :2], clusters.labels2, count) - label_means(points1[:, :2], clusters.labels1, count)
+def centroid_shift(points1: np.ndarray, points2: np.ndarray, clusters: Clusters) -> np.ndarray:
+    """Per cluster, the horizontal shift between its centroid in scan t and its component's in scan t+1."""
+    shift = np.zeros((clusters.count, 3))
+    means2 = label_means(points2[:, :2], clusters.labels2, component_count(clusters))
+    shift[:, :2] = means2[clusters.parent] - label_means(points1[:, :2], clusters.labels1, clusters.count)
     return shift
 
 
@@ -139,14 +305,16 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     count = clusters.count
     picks2 = picks2[np.argsort(clusters.labels2[picks2], kind="stable")]
     labels2 = clusters.labels2[picks2]
-    starts = np.searchsorted(labels2, clusters.labels1[picks1], side="left")
-    lengths = np.searchsorted(labels2, clusters.labels1[picks1], side="right") - starts
+    wanted = clusters.parent[clusters.labels1[picks1]]
+    starts = np.searchsorted(labels2, wanted, side="left")
+    lengths = np.searchsorted(labels2, wanted, side="right") - starts
     first = np.repeat(picks1, lengths)
     second = picks2[np.repeat(starts, lengths) + ragged_arange(lengths)]
     displacement = points2[second, :2] - points1[first, :2]
-    near = np.linalg.norm(displacement, axis=1) <= config.max_step
+    max_step = config.max_speed * config.dt
+    near = np.linalg.norm(displacement, axis=1) <= max_step
     first, displacement = first[near], displacement[near]
-    half = int(np.ceil(config.max_step / config.histogram_bin)) + 1
+    half = int(np.ceil(max_step / config.histogram_bin)) + 1
     width = 2 * half + 1
     cells = np.round(displacement / config.histogram_bin).astype(np.int64) + half
     codes = clusters.labels1[first] * width * width + cells[:, 0] * width + cells[:, 1]
@@ -168,82 +336,198 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
 class Fit(NamedTuple):
     """How well scan t+1 explains each cluster under one motion hypothesis."""
 
-    residual: np.ndarray  # mean distance to the same cluster in scan t+1, each capped at residual_cap (m)
-    unexplained: np.ndarray  # share of points farther than inlier_gate from it
+    residual: np.ndarray  # mean distance to the same component in scan t+1, each capped at residual_cap (m)
+    plane: np.ndarray  # mean distance to its surfaces (along their normals) over the points near them (m)
+    unexplained: np.ndarray  # share of points not near it, or farther than inlier_gate from its surfaces
 
 
-def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray, config: RigidConfig,
-                count: int, clusters: np.ndarray | None = None) -> Fit:
-    """Per label, residual and unexplained share of its moved points against the same cluster in scan t+1
-    (`clusters`: each point's cluster, where the labels are not clusters)."""
-    clusters = labels if clusters is None else clusters
-    gap, index = tree.query(moved, distance_upper_bound=config.residual_cap)
+def surface_distance(moved: np.ndarray, tree: cKDTree, points2: np.ndarray, normals2: np.ndarray | None, cap: float,
+                     allowed: np.ndarray | None = None, labels2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per point, the distance to the nearest point of scan t+1 (capped) and to its surface along the normal there
+    (NaN where no point lies within the cap); `allowed`: the component each point must land on (labels2: the
+    components of scan t+1)."""
+    gap, index = tree.query(moved, distance_upper_bound=cap)
     hit = np.isfinite(gap)
-    hit[hit] = labels2[index[hit]] == clusters[hit]
-    residual = np.where(hit, gap, config.residual_cap)
+    if allowed is not None:
+        hit[hit] = labels2[index[hit]] == allowed[hit]
+    point = np.where(hit, gap, cap)
+    plane = np.full(len(moved), np.nan)
+    if normals2 is None:
+        plane[hit] = gap[hit]
+    else:
+        plane[hit] = np.abs(np.einsum("ij,ij->i", moved[hit] - points2[index[hit]], normals2[index[hit]]))
+    return point, plane
+
+
+def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray, allowed: np.ndarray,
+                config: RigidConfig, count: int, normals2: np.ndarray | None = None,
+                points2: np.ndarray | None = None) -> Fit:
+    """Per label, residuals and unexplained share of its moved points against their component in scan t+1
+    (`allowed`: each point's component)."""
+    point, plane = surface_distance(moved, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    near = np.isfinite(plane)
     sizes = np.maximum(np.bincount(labels, minlength=count), 1)
-    return Fit(np.bincount(labels, residual, count) / sizes,
-               np.bincount(labels, residual > config.inlier_gate, count) / sizes)
+    return Fit(np.bincount(labels, point, count) / sizes,
+               label_means(np.where(near, plane, 0.0), labels, count, near.astype(np.float64)),
+               np.bincount(labels, ~near | (np.where(near, plane, 0.0) > config.inlier_gate), count) / sizes)
 
 
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
-                    mask: np.ndarray | None, normals2: np.ndarray | None = None) -> ClusterMotions:
-    """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better."""
+                    belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
+                    tree: cKDTree | None = None, candidates: np.ndarray | None = None,
+                    previous: np.ndarray | None = None) -> ClusterMotions:
+    """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
+    standing still, and standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
     count = clusters.count
     yaw, translation = np.zeros(count), np.zeros((count, 3))
     if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
         return ClusterMotions(yaw, translation, np.zeros(count, dtype=bool))
-    sizes1 = np.bincount(clusters.labels1, minlength=count)
-    sizes2 = np.bincount(clusters.labels2, minlength=count)
-    active = (np.minimum(sizes1, sizes2) >= config.min_cluster_points) & (label_extents(points1, clusters.labels1, count) <= config.max_extent)
-    belief = None
-    if mask is not None:
-        belief = np.bincount(clusters.labels1, mask, count) / np.maximum(sizes1, 1)
-        active |= (belief > config.mask_threshold) & (np.minimum(sizes1, sizes2) >= config.min_masked_points)
-    tree = cKDTree(points2)
-    rng = np.random.default_rng(0)
-    translation = initial_translations(points1, points2, clusters, active, config, tree, rng)
-    believed = np.zeros(count, dtype=bool) if belief is None else belief > config.mask_threshold
-    active &= believed | (translation != 0.0).any(axis=1)  # where standing still explains a cluster best, it does
-    members = pick_per_label(clusters.labels1, active, config.icp_points, rng)
+    sizes1 = label_counts(clusters.labels1, count)
+    sizes2 = label_counts(clusters.labels2, component_count(clusters))[clusters.parent]
+    sizes = np.minimum(sizes1, sizes2)
+    active = (sizes >= config.min_cluster_points) & (label_extents(points1, clusters.labels1, count) <= config.max_extent)
+    believed = np.zeros(count, dtype=bool)
+    if belief is not None:
+        believed = label_means(belief, clusters.labels1, count) > config.mask_threshold
+        active |= believed & (sizes >= config.min_masked_points)
+    if candidates is not None:
+        active &= candidates
+    tree = cKDTree(points2) if tree is None else tree
+    translation = initial_translations(points1, points2, clusters, active, config, tree, previous)
+    members = ranked_per_label(clusters.labels1, active, config.icp_points, priorities(len(points1), 2))
     source, labels = points1[members], clusters.labels1[members]
-    gates = np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations)
-    for gate in gates:
+    allowed = clusters.parent[labels]
+    max_yaw = config.max_yaw_rate * config.dt
+    for gate in np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations):
         moved = yaw_translate(source, yaw[labels], translation[labels])
         gap, index = tree.query(moved, distance_upper_bound=gate)
         good = np.isfinite(gap)
-        good[good] = clusters.labels2[index[good]] == labels[good]
+        good[good] = clusters.labels2[index[good]] == allowed[good]
         fitted = np.bincount(labels[good], minlength=count) >= 3
         if normals2 is None:
-            new_yaw, new_translation = planar_kabsch(source[good], points2[index[good]], labels[good], count, config.max_yaw)
+            new_yaw, new_translation = planar_kabsch(source[good], points2[index[good]], labels[good], count, max_yaw)
         else:
             new_yaw, new_translation = planar_plane_step(moved[good], points2[index[good]], normals2[index[good]],
                                                          labels[good], yaw, translation, count, config.point_weight,
-                                                         config.max_yaw)
+                                                         max_yaw)
         yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
     moved = yaw_translate(source, yaw[labels], translation[labels])
-    fit_moving = fit_quality(moved, labels, tree, clusters.labels2, config, count)
-    fit_static = fit_quality(source, labels, tree, clusters.labels2, config, count)
-    shift = np.stack([np.bincount(labels, (moved - source)[:, i], count) for i in range(3)], axis=1)
-    displacement = np.linalg.norm(shift, axis=1) / np.maximum(np.bincount(labels, minlength=count), 1)
-    explains = (fit_moving.residual < (1.0 - config.min_gain) * fit_static.residual) | (
-        fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain)
-    moving = active & (displacement > config.min_motion) & explains
-    moving |= active & (displacement > config.min_motion) & believed
+    fit_moving = fit_quality(moved, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    if previous is not None:  # the loop never trades a motion for one that fits worse
+        yaw, translation, fit_moving = better_of(source, labels, previous[members], yaw, translation, fit_moving,
+                                                 lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed,
+                                                                       config, count, normals2, points2), max_yaw)
+        moved = yaw_translate(source, yaw[labels], translation[labels])
+    lifted = source + np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
+    fit_static = fit_quality(lifted, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
+    keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
+    keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
+    floor = floors[clusters.parent]
+    counted = np.maximum(label_counts(labels, count), 1)  # a mean over few points needs a wider margin
+    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))
+    no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
+                & (fit_moving.unexplained <= config.max_unexplained))
+    closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes
+    explains = no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
+                                      | (fit_moving.residual < keep_point * fit_static.residual)))
+                           | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
+    moving = active & (speed > config.min_speed) & explains
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving)
 
 
-def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, moving: np.ndarray,
-                     distance: float) -> np.ndarray:
-    """Label of the moving cluster within `distance` of each point (-1 where none)."""
+def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw: np.ndarray, translation: np.ndarray,
+              fit: Fit, quality, max_yaw: float) -> tuple[np.ndarray, np.ndarray, Fit]:
+    """Per cluster, the new motion or the one its points had before (as a planar rigid fit of their displacements),
+    whichever lies closer to scan t+1 (surface plus point distance)."""
+    count = yaw.size
+    old_yaw, old_translation = planar_kabsch(source, source + previous, labels, count, max_yaw)
+    old_fit = quality(yaw_translate(source, old_yaw[labels], old_translation[labels]))
+    moved_before = label_means(np.abs(previous).sum(axis=1), labels, count) > 0
+    keep = moved_before & (old_fit.plane + old_fit.residual < fit.plane + fit.residual)
+    chosen = Fit(*(np.where(keep, old, new) for old, new in zip(old_fit, fit)))
+    return np.where(keep, old_yaw, yaw), np.where(keep[:, None], old_translation, translation), chosen
+
+
+def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, config: RigidConfig,
+                  belief: np.ndarray | None, previous: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
+    """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
+    surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own."""
+    points2, normals2, tree = surfaces.points, surfaces.normals, surfaces.tree
+    _, still = surface_distance(points1, tree, points2, normals2, config.residual_cap,
+                                clusters.parent[clusters.labels1], clusters.labels2)
+    near = np.isfinite(still)
+    floors = noise_floors(surfaces, clusters, float(np.median(still[near])) if near.any() else 0.0, config)
+    still = np.where(near, still, 0.0)  # points with nothing near them say nothing
+    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous)
+    if config.split_voxel <= 0 or clusters.count == 0:
+        return clusters, motions
+    changed = still > floors[clusters.parent[clusters.labels1]]
+    changed_clusters = label_counts(clusters.labels1[changed], clusters.count) >= config.min_cluster_points
+    components = np.unique(clusters.parent[changed_clusters & ~motions.moving])
+    if components.size == 0:
+        return clusters, motions
+    inside1 = np.isin(clusters.parent[clusters.labels1], components)
+    inside2 = np.isin(clusters.labels2, components)
+    pieces = joint_clusters(points1[inside1], points2[inside2], config.split_voxel,
+                            None if belief is None else belief[inside1] > config.mask_threshold)
+    offset, component_offset = clusters.count, component_count(clusters)
+    labels1, labels2 = clusters.labels1.copy(), clusters.labels2.copy()
+    labels1[inside1] = pieces.labels1 + offset
+    labels2[inside2] = pieces.labels2 + component_offset
+    split = Clusters(labels1, labels2, offset + pieces.count,
+                     np.concatenate([clusters.parent, pieces.parent + component_offset]))
+    origin = np.zeros(component_count(pieces), np.int64)  # the component each piece was cut from
+    origin[pieces.parent[pieces.labels1]] = clusters.parent[clusters.labels1[inside1]]
+    floors = np.concatenate([floors, floors[origin]])
+    # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
+    fresh = (np.arange(split.count) >= offset) & (
+        label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
+    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous)
+    return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
+                                 np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
+                                 np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
+
+
+def label_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Per label, the median of values (zero for empty labels)."""
+    order = np.lexsort((values, labels))
+    sizes = label_counts(labels, count)
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
+    middle = values[order][np.minimum(starts + sizes // 2, max(len(values) - 1, 0))] if len(values) else np.zeros(count)
+    return np.where(sizes > 0, middle, 0.0)
+
+
+def noise_floors(surfaces: Surfaces, clusters: Clusters, noise: float, config: RigidConfig) -> np.ndarray:
+    """Per component, the miss (m) below which standing still explains it: the scene's median miss, the component's
+    own roughness (the median distance of scan t+1's points from their neighbours' surfaces) and half a step at
+    min_speed."""
+    rough = label_medians(surfaces.roughness, clusters.labels2, component_count(clusters))
+    return np.maximum(config.surface_noise * np.maximum(rough, noise), 0.5 * config.min_speed * config.dt)
+
+
+def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarray, motions: ClusterMotions,
+                     surfaces: Surfaces, config: RigidConfig) -> np.ndarray:
+    """Label of the moving cluster within attach_distance of each point, where that cluster's motion brings the point
+    onto the surfaces of scan t+1 clearly better than standing still (-1 elsewhere)."""
     attached = np.full(points.shape[0], -1)
-    on_moving = (labels >= 0) & moving[np.maximum(labels, 0)]
-    if not on_moving.any() or points.shape[0] == 0:
+    on_moving = (labels >= 0) & motions.moving[np.maximum(labels, 0)]
+    points2, normals, tree = surfaces.points, surfaces.normals, surfaces.tree
+    if not on_moving.any() or points.shape[0] == 0 or points2.shape[0] == 0:
         return attached
-    gap, index = cKDTree(clustered[on_moving]).query(points, distance_upper_bound=distance)
-    near = np.isfinite(gap)
-    attached[near] = labels[on_moving][index[near]]
+    gap, index = cKDTree(clustered[on_moving]).query(points, distance_upper_bound=config.attach_distance)
+    near = np.flatnonzero(np.isfinite(gap))
+    if near.size == 0:
+        return attached
+    cluster = labels[on_moving][index[near]]
+    moved = yaw_translate(points[near], motions.yaw[cluster], motions.translation[cluster])
+    still = np.nan_to_num(surface_distance(points[near], tree, points2, normals, config.residual_cap)[1],
+                          nan=config.residual_cap)
+    carried = np.nan_to_num(surface_distance(moved, tree, points2, normals, config.residual_cap)[1],
+                            nan=config.residual_cap)
+    better = (carried < (1.0 - config.min_gain) * still) & (still - carried > 0.5 * config.min_speed * config.dt)
+    attached[near[better]] = cluster[better]
     return attached
 
 

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.geometry.neighbours import nearest
 from ssf_common.records import MotionMask, SceneFlow, Segmentation, SemanticFlow
 from ssf_seg_node.core.base import Segmenter
 
@@ -21,7 +22,10 @@ class FusionConfig(Section):
     alpha: float = Field(1.0, ge=0.0, description="weight of the flow change in Delta_total")
     beta: float = Field(1.0, ge=0.0, description="weight of the mask change in Delta_total")
     epsilon: float = Field(1e-3, gt=0.0, description="the loop has converged when Delta_total falls below this")
-    max_iterations: int = Field(5, ge=1, description="N_iter: flow estimates at most (iteration 0 has no mask)")
+    max_iterations: int = Field(5, ge=1, description="N_iter: flow estimates at most")
+    prior_radius: float = Field(1.0, ge=0.0, description="temporal prior M^(0): each point of a scan takes the dynamic "
+                                "probability of the previous scan's nearest point moved by its flow, within this distance "
+                                "(m); 0: no prior, iteration 0 has no mask")
 
 
 class FlowEstimate(Protocol):
@@ -99,6 +103,29 @@ def flow_change(new: np.ndarray, old: np.ndarray | None) -> float:
     return float(np.linalg.norm(new - old, axis=1).mean()) if len(new) else 0.0
 
 
+def carry_mask(points: np.ndarray, flow: np.ndarray, probability: np.ndarray, next_points: np.ndarray,
+               radius: float) -> np.ndarray:
+    """The temporal prior M^(0) of the next scan: each of its points takes the dynamic probability of the nearest
+    point of this scan moved by its flow into the next scan's frame (0 where none lies within radius)."""
+    prior = np.zeros(len(next_points), np.float32)
+    probability = np.asarray(probability, np.float32)
+    moving = probability > 0.0
+    if not moving.any() or radius <= 0 or len(next_points) == 0:
+        return prior
+    moved = np.asarray(points, np.float64)[:, :3] + np.asarray(flow, np.float64)
+    following = np.asarray(next_points, np.float64)[:, :3]
+    # only the surroundings of the moving points matter: there, the nearest moved point of any kind decides
+    near_moving = nearest(moved[moving], moved, 2.0 * radius)
+    around = np.flatnonzero(np.isfinite(near_moving.distance))
+    candidates = np.flatnonzero(np.isfinite(nearest(moved[moving], following, radius).distance))
+    if candidates.size == 0:
+        return prior
+    found = nearest(moved[around], following[candidates], radius)
+    hit = np.isfinite(found.distance)
+    prior[candidates[hit]] = probability[around[found.index[hit]]]
+    return prior
+
+
 class FusionLoop:
     """Flow and segmentation promoting each other until they agree."""
 
@@ -172,17 +199,30 @@ class _Scan:
     started_s: float
     flows: dict[int, np.ndarray] = field(default_factory=dict)
     masks: dict[int, MotionMask] = field(default_factory=dict)  # mask computed from the flow of iteration i
+    prior: np.ndarray | None = None  # the previous scan's segmentation carried onto this one
+
+
+@dataclass(frozen=True)
+class _Finished:
+    stamp_ns: int
+    points: np.ndarray
+    flow: np.ndarray
+    dynamic_prob: np.ndarray
 
 
 class DistributedLoop:
     """The fusion loop when flow and segmentation run in other processes: it takes S^(i) and the mask computed from
     it as they arrive, keyed by stamp and iteration, and decides to continue (a mask hint) or to finish. A lost or
-    late message never stalls it: after `timeout_s` the best answer so far is published."""
+    late message never stalls it: after `timeout_s` the best answer so far is published. The flow of a scan's
+    iteration 0 is estimated before any mask exists, so the temporal prior (the previous scan's segmentation carried
+    by its flow) joins the first mask hint."""
 
     def __init__(self, config: FusionConfig, timeout_s: float = 0.5) -> None:
         self.config = config
         self.timeout_s = timeout_s
         self.scan: _Scan | None = None
+        self.last: _Finished | None = None
+        self.gap_ns: int | None = None  # the shortest time between consecutive scans seen
         self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0}
 
     def on_flow(self, flow: SceneFlow, now_s: float) -> list[Finish]:
@@ -194,6 +234,7 @@ class DistributedLoop:
             if self.scan is not None:
                 done += self._finish_best("superseded")
             self.scan = _Scan(flow.stamp_ns, flow.frame_id, np.asarray(flow.points), now_s)
+            self.scan.prior = self._prior(self.scan)
         if len(flow.points) != len(self.scan.points):
             return done
         self.scan.flows[flow.iteration] = np.asarray(flow.flow, np.float32)
@@ -217,13 +258,26 @@ class DistributedLoop:
         status = self._status(i, delta_total, delta_flow, delta_mask, converged, mask)
         if converged or i + 1 >= self.config.max_iterations:
             return self._finish(i, status, "converged" if converged else "max_iterations")
-        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, mask.dynamic_prob, mask.instance, i + 1), status)
+        hint = mask.dynamic_prob if scan.prior is None or i > 0 else np.maximum(mask.dynamic_prob, scan.prior)
+        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, hint, mask.instance, i + 1), status)
 
     def on_timer(self, now_s: float) -> list[Finish]:
         """Give up on a scan that has waited too long, publishing the best answer so far."""
         if self.scan is not None and now_s - self.scan.started_s > self.timeout_s:
             return self._finish_best("timeout")
         return []
+
+    def _prior(self, scan: _Scan) -> np.ndarray | None:
+        """The last finished scan's segmentation carried onto this scan, if that scan came right before it (its flow
+        points into this scan's frame only then)."""
+        last = self.last
+        if last is None or self.config.prior_radius <= 0 or scan.stamp_ns <= last.stamp_ns:
+            return None
+        gap = scan.stamp_ns - last.stamp_ns
+        self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
+        if gap > 1.5 * self.gap_ns:
+            return None  # a scan was skipped in between
+        return carry_mask(last.points, last.flow, last.dynamic_prob, scan.points, self.config.prior_radius)
 
     def _status(self, iteration: int, total: float, flow: float, mask: float, converged: bool, seg: MotionMask) -> LoopStatus:
         static = int(np.count_nonzero(seg.dynamic_prob <= 0.5))
@@ -249,6 +303,7 @@ class DistributedLoop:
         segmentation = Segmentation.from_probability(mask.dynamic_prob, mask.instance)
         result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, scan.flows[iteration], segmentation,
                               iterations=iteration + 1, converged=reason == "converged")
+        self.last = _Finished(scan.stamp_ns, scan.points, scan.flows[iteration], mask.dynamic_prob)
         self.finished[reason] += 1
         self.scan = None
         return Finish(result, status, reason)

@@ -15,7 +15,10 @@ class ObstacleConfig(Section):
     """How dynamic instances become obstacles."""
 
     min_points: int = Field(5, ge=1, description="instances with fewer points are not reported")
-    vehicle_length: float = Field(2.2, gt=0.0, description="footprints at least this long (m) are vehicles, else pedestrians")
+    vehicle_length: float = Field(1.2, gt=0.0, description="footprints with a side at least this long (m) are vehicles, "
+                                  "else pedestrians (a car seen end-on shows only its width)")
+    heading_speed: float = Field(1.0, ge=0.0, description="a vehicle this fast (m/s) has its length along the side of its "
+                                 "footprint closest to its velocity")
     vehicle_size: tuple[float, float] = Field((4.4, 1.8), description="a vehicle's footprint is grown to at least this "
                                               "(length, width; m), away from the sensor (its hidden sides)")
     pedestrian_size: tuple[float, float] = Field((0.6, 0.6), description="the same for pedestrians")
@@ -44,16 +47,25 @@ def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmen
 
 def describe(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig):
     """Box (centre, size, yaw), kind, mean velocity and its covariance of one object's points."""
+    velocity = velocities.mean(axis=0)
     centre_xy, sides, yaw = min_area_rectangle(points[:, :2])
     kind = ObstacleKind.VEHICLE if sides[0] >= config.vehicle_length else ObstacleKind.PEDESTRIAN
+    if kind is ObstacleKind.VEHICLE and np.hypot(*velocity[:2]) >= config.heading_speed:
+        sides, yaw = along_velocity(sides, yaw, velocity[:2])
     prior = config.vehicle_size if kind is ObstacleKind.VEHICLE else config.pedestrian_size
     centre_xy, sides = grow_away_from_sensor(centre_xy, sides, yaw, np.array(prior))
     low, high = points[:, 2].min(), points[:, 2].max()
-    velocity = velocities.mean(axis=0)
     spread = np.cov(velocities.T) / len(velocities) if len(velocities) > 1 else np.zeros((3, 3))
     covariance = spread + np.eye(3) * config.velocity_noise ** 2
     return (np.array([centre_xy[0], centre_xy[1], (low + high) / 2]), np.array([sides[0], sides[1], high - low]),
             yaw, int(kind), velocity, covariance)
+
+
+def along_velocity(sides: np.ndarray, yaw: float, velocity: np.ndarray) -> tuple[np.ndarray, float]:
+    """The footprint's sides and heading with the length axis the one closer to the direction of travel (a vehicle
+    seen end-on shows a face as wide as it is, across its motion)."""
+    across = abs(np.cos(yaw) * velocity[1] - np.sin(yaw) * velocity[0]) > abs(np.cos(yaw) * velocity[0] + np.sin(yaw) * velocity[1])
+    return (sides[::-1].copy(), float((yaw + np.pi) % np.pi - np.pi / 2)) if across else (sides, yaw)
 
 
 def grow_away_from_sensor(centre: np.ndarray, sides: np.ndarray, yaw: float, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,0 +1,97 @@
+"""The rigid estimator inside the fusion loop: stable ego subsets, work cached per pair, motions proven by surfaces,
+whole scans spent at every range with ground points pinning the ego."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from ssf_common.config import build
+from ssf_common.dataset.synthetic import synthetic_pair
+from ssf_common.geometry.ground import ground_mask
+from ssf_common.geometry.se3 import make_pose, rigid_flow, transform_points
+from ssf_eval.flow.metrics import flow_metrics, score_flow
+from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
+from ssf_flow_node.core.preprocess import PreprocessConfig, downsample
+from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
+
+
+@pytest.fixture(scope="module")
+def pair():
+    return synthetic_pair(seed=5, agents=6, ego_step=0.8)
+
+
+def test_ordered_icp_uses_the_first_points_so_a_mask_keeps_the_others_subset(pair):
+    config = RegistrationConfig(source_points=512, refine_points=2048)
+    matcher = ScanMatcher(pair.pc2, config)
+    source = pair.pc1[np.random.default_rng(1).permutation(len(pair.pc1))]
+    ego = matcher.align(source, ordered=True)
+    np.testing.assert_allclose(ego, matcher.align(source[:3000], ordered=True), atol=1e-5)  # beyond the subsets: same
+    assert np.abs(ego - pair.ego).max() < 0.03
+
+
+def test_the_same_pair_and_mask_give_the_same_flow_and_the_moved_set_returns_the_last_estimate(pair):
+    estimator = make_estimator("rigid")
+    first = estimator.estimate(pair.pc1, pair.pc2)
+    moved = np.linalg.norm(first.flow - rigid_flow(first.ego, pair.pc1), axis=1) > 0.0
+    again = estimator.estimate(pair.pc1, pair.pc2, moved.astype(np.float32))
+    assert again is first  # the mask adds nothing the estimate did not already know
+    other = make_estimator("rigid").estimate(pair.pc1, pair.pc2)
+    np.testing.assert_allclose(other.flow, first.flow, atol=1e-4)
+    mask = (pair.instance1 == pair.instance1.max()).astype(np.float32)
+    np.testing.assert_allclose(estimator.estimate(pair.pc1, pair.pc2, mask).flow,
+                               estimator.estimate(pair.pc1, pair.pc2, mask).flow, atol=1e-4)
+
+
+def test_a_walker_is_proven_by_the_surfaces_it_leaves():
+    """A pedestrian box walking 1.9 m/s: its points' distances to scan t+1 fall by less than half, the distances to
+    its surfaces by three quarters."""
+    pair = synthetic_pair(seed=7, agents=8, ego_step=0.8)
+    own = transform_points(np.linalg.inv(pair.ego), pair.pc1 + pair.flow) - pair.pc1
+    result = make_estimator("rigid").estimate(pair.pc1, pair.pc2)
+    walkers = [k for k in np.unique(pair.instance1[pair.dynamic1])
+               if np.ptp(pair.pc1[pair.instance1 == k, 0]) < 1.0 and 0.15 < np.linalg.norm(own[pair.instance1 == k].mean(0)) < 0.2]
+    assert walkers
+    for k in walkers:
+        on = pair.instance1 == k
+        assert flow_metrics(result.flow[on], pair.flow[on]).epe3d < 0.05
+    static = ~pair.dynamic1
+    assert flow_metrics(result.flow[static], pair.flow[static]).epe3d < 0.02
+
+
+def test_range_balanced_sampling_keeps_the_far_points():
+    rng = np.random.default_rng(0)
+    near = rng.uniform(-10, 10, (20000, 3)) + [0, 0, 1]
+    far = rng.uniform(-1, 1, (200, 3)) + [80, 0, 1]
+    scan = np.concatenate([near, far]).astype(np.float32)
+    config = PreprocessConfig(points=4096, max_range=1000.0, range_balance=True)
+    sample = downsample(scan, config, np.random.default_rng(0))
+    assert len(sample.indices) == 4096 and np.isin(np.arange(20000, 20200), sample.indices).mean() > 0.95
+    plain = downsample(scan, config.model_copy(update={"range_balance": False}), np.random.default_rng(0))
+    assert np.isin(np.arange(20000, 20200), plain.indices).mean() < 0.4
+
+
+def test_whole_scans_pin_the_ego_height_with_ground_points():
+    pair = synthetic_pair(seed=3, agents=2, ego_step=1.0)
+    lifted = make_pose(0.0, 0.0, 0.06, 0.0) @ pair.pose2  # the sensor also rises 6 cm
+    pc2 = transform_points(np.linalg.inv(lifted) @ pair.pose2, pair.pc2)
+    ego = np.linalg.inv(lifted) @ pair.pose1
+    config = build(FlowConfig, WHOLE_SCAN)
+    sample = downsample(pair.pc1, config.preprocess, np.random.default_rng(0))
+    assert sample.ground is not None and len(sample.ground) > 100
+    result = make_estimator("rigid", config).estimate(pair.pc1, pc2)
+    assert abs(result.ego[2, 3] - ego[2, 3]) < 0.01
+    truth = transform_points(ego, pair.pc1) - pair.pc1  # the static scene's flow
+    assert score_flow(result.flow, truth, pair.dynamic1).static.epe3d < 0.02
+
+
+def test_scans_without_ground_keep_their_objects_bottoms(pair):
+    """The protocol's scans have no ground: the lowest points are the bottoms of objects, and they move with them."""
+    cut = pair.class1 != 0
+    pc2_cut = pair.pc2[~ground_mask(pair.pc2)]  # scan t+1 without its ground either
+    result = make_estimator("rigid").estimate(pair.pc1[cut], pc2_cut)
+    estimator = make_estimator("rigid")
+    estimator.estimate(pair.pc1[cut], pc2_cut)
+    assert estimator.state.above1.all()
+    movers = pair.dynamic1[cut]
+    assert flow_metrics(result.flow[movers], pair.flow[cut][movers]).epe3d < 0.15
