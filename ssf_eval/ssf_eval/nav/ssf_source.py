@@ -39,7 +39,7 @@ class SsfPerception:
         if previous is None:
             return Obstacles.empty(frame.stamp_ns, ODOM_FRAME)
         stamp_ns, pc1, pose1 = previous
-        seen = self.pipeline.perceive(pc1, points, stamp_ns=stamp_ns, frame_id="lidar")
+        seen = self.pipeline.perceive(pc1, points, stamp_ns=stamp_ns, frame_id="lidar", follows=True)
         self.iterations.append(seen.fusion.iterations)
         moving = seen.obstacles.transformed(pose1, ODOM_FRAME)
         still = cluster_boxes(pc1[~seen.fusion.segmentation.dynamic], pose1, stamp_ns, self.clusters).boxes

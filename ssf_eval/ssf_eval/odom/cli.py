@@ -107,7 +107,7 @@ def perception_for(masks: str, seed: int):
     from ssf_flow_node.core.estimator import WHOLE_SCAN
 
     pipeline = SsfPerception(build(PerceptionConfig, {"flow": WHOLE_SCAN}))
-    return Perception(MaskSource(masks), pipeline.loop.estimator, pipeline.loop if masks == "seg" else None, seed)
+    return Perception(MaskSource(masks), pipeline.loop.estimator, pipeline if masks == "seg" else None, seed)
 
 
 def format_table(results: dict) -> str:

@@ -44,19 +44,24 @@ class Perceived:
 class Perception:
     """Scene flow from the project's estimator on whole scans and the static mask from the chosen source."""
 
-    def __init__(self, masks: MaskSource, estimator, fusion=None, seed: int = 0) -> None:
+    def __init__(self, masks: MaskSource, estimator, pipeline=None, seed: int = 0) -> None:
         self.masks = MaskSource(masks)
         self.estimator = estimator
-        self.fusion = fusion
+        self.pipeline = pipeline  # ssf_eval.pipeline.SsfPerception, for masks from the segmentation
         self.rng = np.random.default_rng(seed)
+
+    def reset(self) -> None:
+        """A new sequence starts: no segmentation to carry over."""
+        if self.pipeline is not None:
+            self.pipeline.reset()
 
     def __call__(self, scan: SimScan) -> Perceived:
         """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
         started = time.perf_counter()
         if self.masks is MaskSource.SEG:
-            result = self.fusion.run(scan.points, scan.next_points)
-            return Perceived(result.steps[0].flow, result.flow, result.segmentation.dynamic_prob,
-                             (time.perf_counter() - started) * 1e3)
+            result = self.pipeline.perceive(scan.points, scan.next_points, follows=True).fusion  # consecutive scans
+            plain = self.estimator.estimate(scan.points, scan.next_points).flow
+            return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3)
         if self.masks is MaskSource.GT:
             mask = scan.dynamic.astype(np.float32)
         else:
@@ -137,6 +142,8 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
     kiss = KissIcpBaseline() if KISS_ICP in methods else None
     result = SequenceResult(runs={name: MethodRun(name) for name in methods})
     paths = SweptPaths()
+    if perception is not None:
+        perception.reset()
     for count, scan in enumerate(scans, 1):
         result.truth.append(scan.pose)
         result.stamps_s.append(scan.stamp_ns * 1e-9)

@@ -108,7 +108,7 @@ class Perceiver:
             return OdomInput(stamp_ns, pc1)
         if self.estimator is not None:
             return OdomInput(stamp_ns, pc1, self.estimator.estimate(pc1, pc2).flow)
-        fusion = self.perception.loop.run(pc1, pc2)
+        fusion = self.perception.perceive(pc1, pc2, follows=True).fusion  # consecutive scans: the last mask carried
         return OdomInput(stamp_ns, pc1, fusion.flow, fusion.segmentation.dynamic_prob)
 
 
