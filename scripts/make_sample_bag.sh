@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
-# Record bags/sample/recording again: the demo graph with a lighter LiDAR for 1 s (see bags/README.md).
+# Record bags/sample again: the demo graph with a lighter LiDAR for 1 s, chosen topics (see bags/README.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
-rm -rf bags/sample/recording
-.venv/bin/ssf launch bags/sample/graph.yaml
-.venv/bin/ssf bag info bags/sample/recording
+rm -rf bags/sample
+.venv/bin/ssf launch scripts/sample_bag.yaml
+.venv/bin/ssf bag info bags/sample
