@@ -229,10 +229,12 @@ def format_bench(bench: GraphBench) -> str:
 def bench_command(args: argparse.Namespace) -> int:
     """ssf bench graph."""
     from ssf_common.checks import require_finite
+    from ssf_common.demo import check_scenario
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable
 
     duration = require_finite(args.duration, "--duration", above=0.0)
+    check_scenario(args.scenario)
     if args.json:
         check_writable(args.json, "result file")
     print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",

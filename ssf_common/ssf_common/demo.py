@@ -74,13 +74,18 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, dr
     return graph.model_copy(update={"nodes": nodes})
 
 
+def check_scenario(scenario: str) -> None:
+    """Read the scenario with the installed simulator's own reader, so that a bad one fails in one line here."""
+    for loader in metadata.entry_points(group=SCENARIO_LOADERS):
+        loader.load()(scenario)
+
+
 def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: Path | None = None) -> None:
     """Refuse bad flags in one line before any process starts."""
     require_finite(duration_s, "--duration", above=0.0)
     if seed != -1:
         require_seed(seed, "--seed")
-    for loader in metadata.entry_points(group=SCENARIO_LOADERS):  # the simulator's own reader, when installed
-        loader.load()(scenario)
+    check_scenario(scenario)
     if DemoPaths(out).recording.exists():
         raise ConfigError(f"{DemoPaths(out).recording} already exists; choose another --out")
     check_writable_dir(out, "--out folder")

@@ -28,13 +28,14 @@ _PR_SET_PDEATHSIG = 1
 CONFIG_ERROR_EXIT = 2  # a node's answer to bad parameters or files: restarting cannot help
 _STOPPED_CODES = (0, 130, -signal.SIGINT)  # how a process ends when it was asked to stop
 _PLAIN_TEXT = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-./~+= "
-# The child imports its entry point with SIGINT blocked (see _start_child), so that a Ctrl-C during the
-# imports ends it quietly with 130 instead of a KeyboardInterrupt traceback.
+# The child imports its entry point with SIGINT blocked (see _start_child): an interrupt inside a C
+# extension's import surfaces as an ImportError, not a KeyboardInterrupt. A Ctrl-C that arrived meanwhile
+# is delivered when the imports are done and ends the child quietly with 130.
 _BOOTSTRAP = (
     "import signal, sys\n"
     "try:\n"
-    "    signal.pthread_sigmask(signal.SIG_UNBLOCK, {{signal.SIGINT}})\n"
     "    from {module} import {func}\n"
+    "    signal.pthread_sigmask(signal.SIG_UNBLOCK, {{signal.SIGINT}})\n"
     "    code = {func}()\n"
     "except KeyboardInterrupt:\n"
     "    code = 130\n"

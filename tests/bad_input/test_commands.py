@@ -233,6 +233,11 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--odom-config", hostile_yaml_file(d, f)],
     ),
     "bench flow": lambda d, f: ["bench", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
+    "bench graph": one_of(  # every case must fail before a process starts
+        lambda d, f: ["bench", "graph", f"--duration={d(not_positive())}"],
+        lambda d, f: ["bench", "graph", "--scenario", hostile_yaml_file(d, f)],
+        lambda d, f: ["bench", "graph", "--json", bad_output(d, f)],
+    ),
 }
 
 
