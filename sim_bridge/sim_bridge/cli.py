@@ -57,8 +57,9 @@ def register(groups: CommandGroups) -> None:
     export.add_argument("--scenario", required=True, help="shipped scenario name or a YAML file")
     export.add_argument("--seed", type=int, default=None)
     export.add_argument("--frames", type=int, required=True, help="number of consecutive pairs")
-    export.add_argument("--warmup", type=float, default=2.0, metavar="S",
-                        help="simulated seconds before the first pair, so that the traffic is moving (default 2)")
+    export.add_argument("--warmup", type=float, default=None, metavar="S",
+                        help="simulated seconds before the first pair, so that the traffic is moving (default: the "
+                        "scenario's episode.warmup_s, 2 s unless it says otherwise)")
     export.add_argument("--out", type=Path, required=True)
     add_protocol_options(export)
     add_override_option(export)
