@@ -232,6 +232,14 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--json", bad_output(d, f)],
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--odom-config", hostile_yaml_file(d, f)],
     ),
+    "eval sensors": one_of(
+        lambda d, f: ["eval", "sensors", "--seeds", d(st.sampled_from(["a", "-1", "5-3", "1.5", "", "0-99999"]))],
+        lambda d, f: ["eval", "sensors", "--scenarios", hostile_yaml_file(d, f)],
+        lambda d, f: ["eval", "sensors", "--sensors", d(st.sampled_from(["vlp64", "vlp16,x", "os1"]))],
+        lambda d, f: ["eval", "sensors", "--sim-param", d(bad_overrides())],
+        lambda d, f: ["eval", "sensors", "--config", hostile_yaml_file(d, f)],
+        lambda d, f: ["eval", "sensors", "--json", bad_output(d, f)],
+    ),
     "bench flow": lambda d, f: ["bench", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
 }
 
@@ -274,7 +282,7 @@ def test_every_command_has_bad_input_cases():
 
 
 SLOW = {name: 8 for name in ("eval flow", "bench flow", "seg estimate", "eval seg", "eval fusion", "bench seg",
-                              "bench fusion", "odom run", "eval odom", "bench odom")}
+                              "bench fusion", "odom run", "eval odom", "bench odom", "eval sensors")}
 # (commands that import torch and build estimators before they read input)
 
 

@@ -3,12 +3,15 @@ dropout, mixed points at depth edges) with their ground truth."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
 from sim_bridge.agents import agent_mesh
 from sim_bridge.lidar import MIXED_GAP, Lidar, ray_fan, surface_distance
 from sim_bridge.meshes import TriangleSoup
+from sim_bridge.node import SimBridgeNode
 from sim_bridge.ros_messages import scan_cloud
 from sim_bridge.scenario import load_scenario
 from sim_bridge.sensors import SENSOR_MODELS, sensor_names
@@ -211,3 +214,13 @@ def test_the_default_sensor_is_todays_64_beam_sweep():
     assert (spec.model, spec.beams, spec.columns, spec.max_range, spec.range_noise) == ("hdl64e", 64, 1024, 100.0, 0.01)
     np.testing.assert_array_equal(spec.elevations, np.linspace(-24.9, 2.0, 64))
     assert scenario.episode.dt == 0.1 and spec.dropout == 0.0 and spec.mixed_points == 0.0
+
+
+def test_the_node_takes_scenario_settings_as_parameters():
+    small = ["route.waypoints=[[0,0],[60,0]]", "ground.margin=30", "agents.count=0"]
+    node = SimBridgeNode(argv=["--ros-args", "-p", "scenario:=empty", "-p", f"overrides:={json.dumps(small)}",
+                               "-p", "lidar.model:=vlp16", "-p", "lidar.rate_hz:=20", "-p", "markers:=false"])
+    try:
+        assert node.sim.lidar.spec.model == "vlp16" and node.sim.lidar.spec.columns == 900 and node.sim.dt == 0.05
+    finally:
+        node.destroy_node()
