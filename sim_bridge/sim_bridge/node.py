@@ -42,7 +42,8 @@ class Driver(str, Enum):
 
 
 class SimNodeConfig(Section):
-    """Parameters of sim_bridge (same names in YAML, --ros-args -p and `ssf sim` flags)."""
+    """Parameters of sim_bridge (same names in YAML, --ros-args -p and `ssf sim` flags). Scenario settings are
+    parameters too, by their dotted names (-p lidar.model:=vlp16, -p agents.count:=20), over `overrides`."""
 
     scenario: str = "urban_100"
     overrides: list[str] = Field(default_factory=list, description="scenario settings as NAME=VALUE, e.g. agents.count=20")

@@ -76,7 +76,7 @@ class Simulator:
         self.ego = EgoVehicle(
             self.scenario.ego, self.world.ground, EgoState(float(start_xy[0]), float(start_xy[1]), heading, 0.0, 0.0)
         )
-        self.traffic = Traffic(self.world, self.scenario.agents, np.random.default_rng([self.seed, 2]), start_xy)
+        self.traffic = place_traffic(self.world, self.seed)
         self._noise = np.random.default_rng([self.seed, 3])
         self.index = 0
         self.distance = 0.0
@@ -229,6 +229,11 @@ class Simulator:
     def agent_surfaces(self, agents: AgentStates):
         """Triangles of every agent (for checking ground truth against surfaces)."""
         return agent_mesh(agents, np.zeros(2), np.inf)
+
+
+def place_traffic(world: World, seed: int) -> Traffic:
+    """The agents of an episode at their start (a ConfigError when this seed cannot place them all)."""
+    return Traffic(world, world.scenario.agents, np.random.default_rng([seed, 2]), world.start.xy)
 
 
 def episode_summary(sim: Simulator, wall_seconds: float, step_ms: list[float] | None = None) -> dict[str, object]:

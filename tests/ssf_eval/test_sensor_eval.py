@@ -77,7 +77,17 @@ def test_eval_sensors_prints_one_table_and_writes_every_cell(street, tmp_path, c
         assert set(cell["targets_met"]) == {"dynamic_epe", "ego_ratio", "moving_iou"}
         assert cell["ego"]["dynamic"]["epe3d"] > 0.1  # the cross traffic moves; ego motion alone misses it
         assert 0.0 <= cell["loop_seg"]["moving_iou"] <= 1.0
-    assert document["config"]["sensors"] == ["vlp16", "roof_2x32"]
+    assert document["config"]["sensors"] == ["vlp16", "roof_2x32"] and document["complete"] is True
+
+
+def test_eval_sensors_refuses_a_seed_whose_traffic_does_not_fit_before_any_work(tmp_path, capsys):
+    crowded = tmp_path / "crowded.yaml"
+    crowded.write_text(yaml.safe_dump({"route": {"waypoints": [[0.0, 0.0], [60.0, 0.0]]}, "ground": {"margin": 30.0},
+                                       "agents": {"count": 400, "vehicle_fraction": 1.0}}))
+    out = tmp_path / "never.json"
+    assert main(["eval", "sensors", "--scenarios", "stress_far", str(crowded), "--seeds", "0", "--json", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "agents.count" in err[0] and not out.exists()
 
 
 def test_seed_lists():

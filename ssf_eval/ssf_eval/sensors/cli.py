@@ -74,6 +74,8 @@ def run_eval_sensors(args: argparse.Namespace) -> int:
 
     from sim_bridge.scenario import load_scenario, overrides_from_pairs
     from sim_bridge.sensors import sensor_names
+    from sim_bridge.simulator import place_traffic
+    from sim_bridge.world import World
     from ssf_common.errors import ConfigError
     from ssf_common.paths import check_writable
     from ssf_eval.flow.evaluate import MaskSource
@@ -93,12 +95,14 @@ def run_eval_sensors(args: argparse.Namespace) -> int:
     shared = overrides_from_pairs(args.sim_param, "--sim-param")
     plans = {(sensor, name): load_scenario(name, {**shared, "lidar.model": sensor})  # every cell checked first
              for name in scenarios for sensor in sensors}
+    for name in scenarios:  # and every seed's traffic placed: a long run never stops half-way on a crowded seed
+        for seed in seeds:
+            place_traffic(World(plans[sensors[0], name], seed), seed)
     protocol = protocol_from_args(args)
+    configs = {cell: perception_config(args, scenario) for cell, scenario in plans.items()}
     torch.set_num_threads(args.threads)
-    targets, cells, configs = Targets(), [], {}
-    for (sensor, name), scenario in plans.items():
-        config = perception_config(args, scenario)
-        configs[f"{sensor}/{name}"] = config
+    targets, cells = Targets(), []
+    for (sensor, name), config in configs.items():
         evaluator = SensorEvaluator(config, MaskSource(args.masks), args.device)
         parts = []
         for seed in seeds:
@@ -107,14 +111,13 @@ def run_eval_sensors(args: argparse.Namespace) -> int:
             parts.append(evaluator.run(source.pairs, seed))
         cells.append(cell_scores(sensor, name, seeds, parts))
         print(format_cells(cells[-1:], targets).splitlines()[-1], file=sys.stderr, flush=True)
+        if args.json:  # after every cell, so that a long run leaves what it measured
+            write_result(args.json, {"complete": len(cells) == len(configs), "seeds": seeds, "frames": args.frames,
+                                     "protocol": protocol, "masks": args.masks, "sim_params": shared,
+                                     "targets": targets._asdict(), "cells": [cell_record(c, targets) for c in cells]},
+                         {"perception": next(iter(configs.values())), "sensors": sensors, "scenarios": scenarios,
+                          "sim_params": shared, "warmup_s": args.warmup, "protocol": protocol})
     print(f"perception per sensor and scenario: seeds {args.seeds}, {args.frames} pairs each, protocol {args.protocol}, "
           f"masks for rigid/ego: {args.masks}")
     print(format_cells(cells, targets))
-    if args.json:
-        first = next(iter(configs.values()))
-        write_result(args.json, {"seeds": seeds, "frames": args.frames, "protocol": protocol, "masks": args.masks,
-                                 "sim_params": shared, "targets": targets._asdict(),
-                                 "cells": [cell_record(cell, targets) for cell in cells]},
-                     {"perception": first, "sensors": sensors, "scenarios": scenarios, "sim_params": shared,
-                      "warmup_s": args.warmup, "protocol": protocol})
     return 0
