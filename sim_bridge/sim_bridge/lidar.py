@@ -4,12 +4,14 @@ One sweep is cast from the pose at its stamp (no motion distortion within the sw
 would fire). Every sensor model is a set of rays (origin and direction in the `lidar` frame, ring, column) built
 from its datasheet layout; a rig of several sensors casts each from its own origin into one merged cloud.
 
-Sensor effects: Gaussian range noise, random dropout of returns, and mixed points at depth edges. A beam whose
-footprint straddles a foreground and a background surface (its neighbour in the same ring hits a surface between
-MIXED_GAP[0] and MIXED_GAP[1] metres nearer or farther) returns, with probability `mixed_points`, a point somewhere
-between the two along the beam. Its ground truth is that of the surface nearer to it along the beam: that
-surface's class and instance, and its rigid motion (see ground_truth.py), so its flow keeps its distance to that
-surface exactly although the point itself lies on neither.
+Sensor effects: Gaussian range noise, random dropout of returns, and mixed points at depth edges. A beam next to
+a depth edge (its neighbour in the same ring hits a surface MIXED_GAP[0] to MIXED_GAP[1] metres nearer or
+farther) has the edge inside its footprint with the model's `straddle_share` (from its beam divergence and azimuth
+step); such a beam returns, with probability `mixed_points`, one merged echo: a point somewhere between the two
+surfaces along the beam. Farther apart, the two echoes separate and the sensor reports one surface. A mixed
+point's ground truth is that of the surface nearer to it along the beam: that surface's class and instance, and
+its rigid motion (see ground_truth.py), so its flow keeps its distance to that surface exactly although the point
+itself lies on neither.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from sim_bridge.sensors import SensorSpec
 from sim_bridge.world import PointClass
 
 REFLECTIVITY = np.array([0.25, 0.45, 0.6, 0.3, 0.8, 0.8, 0.35], np.float32)  # indexed by PointClass
-MIXED_GAP = (0.3, 5.0)  # depth steps (m) across which one beam footprint returns a blend of both surfaces
+MIXED_GAP = (0.3, 2.0)  # depth steps (m) whose two echoes merge into one (a pulse of a few ns), so a mixed point
 
 
 @dataclass(frozen=True)
@@ -180,7 +182,7 @@ class Lidar:
         with np.errstate(invalid="ignore"):  # inf - inf where neither ray hits anything
             gap = np.abs(distance[neighbour] - distance)
         edge = np.isfinite(gap) & (gap >= MIXED_GAP[0]) & (gap <= MIXED_GAP[1])
-        mixed = edge & (rng.random(len(distance)) < self.spec.mixed_points)
+        mixed = edge & (rng.random(len(distance)) < self.spec.mixed_points * self.spec.straddle_share)
         where = np.flatnonzero(mixed)
         blend = rng.random(len(where)).astype(np.float32)
         distance = distance.copy()

@@ -106,8 +106,8 @@ class LidarConfig(Section):
     min_range: float | None = Field(None, ge=0.0, le=10.0)
     range_noise: float | None = Field(None, ge=0.0, le=1.0, description="Gaussian range error, sigma (m)")
     dropout: float = Field(0.0, ge=0.0, lt=1.0, description="probability of losing a return")
-    mixed_points: float = Field(0.0, ge=0.0, le=1.0, description="probability that a beam straddling a depth edge "
-                                "returns a mixed point between the two surfaces")
+    mixed_points: float = Field(0.0, ge=0.0, le=1.0, description="probability that a beam whose footprint straddles "
+                                "a depth edge returns one merged echo: a point between the two surfaces")
     mount_height: float = Field(1.8, ge=0.5, le=5.0)
     frame_id: str = "lidar"
 
@@ -143,6 +143,7 @@ class LidarConfig(Section):
             range_noise=model.range_noise if self.range_noise is None else self.range_noise,
             dropout=self.dropout,
             mixed_points=self.mixed_points,
+            divergence_mrad=model.divergence_mrad,
             mounts=model.mounts,
         )
 

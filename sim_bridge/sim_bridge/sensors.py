@@ -47,6 +47,7 @@ class SensorModel:
     min_range: float
     max_range: float
     range_noise: float  # standard deviation of the range (m)
+    divergence_mrad: float  # horizontal beam divergence: the footprint is this wide per metre of range
     mounts: tuple[Mount, ...] = (Mount(),)
 
     def columns_at(self, rate_hz: float) -> int:
@@ -82,33 +83,35 @@ SENSOR_MODELS: dict[str, SensorModel] = {
         SensorModel(
             "hdl64e",
             "Velodyne HDL-64E: 64 beams evenly from -24.9 to +2 deg (0.43 deg apart); 1024 firings per beam at 10 Hz "
-            "(the datasheet's S3 fires ~2083: -p lidar.columns:=2083); 100 m; range sigma 1 cm",
-            tuple(np.linspace(-24.9, 2.0, 64).tolist()), 1024, False, VELODYNE_RATES, True, 1.0, 100.0, 0.01,
+            "(the datasheet's S3 fires ~2083: -p lidar.columns:=2083); 100 m; range sigma 1 cm; ~2 mrad divergence",
+            tuple(np.linspace(-24.9, 2.0, 64).tolist()), 1024, False, VELODYNE_RATES, True, 1.0, 100.0, 0.01, 2.0,
         ),
         SensorModel(
             "vlp16",
             "Velodyne VLP-16 (Puck): 16 beams from -15 to +15 deg every 2 deg; 0.2 deg azimuth at 10 Hz (1800 "
-            "firings); 100 m; +-3 cm typical accuracy (sigma 1.5 cm)",
-            tuple(float(e) for e in range(-15, 16, 2)), 1800, False, VELODYNE_RATES, True, 1.0, 100.0, 0.015,
+            "firings); 100 m; +-3 cm typical accuracy (sigma 1.5 cm); 3 mrad horizontal divergence",
+            tuple(float(e) for e in range(-15, 16, 2)), 1800, False, VELODYNE_RATES, True, 1.0, 100.0, 0.015, 3.0,
         ),
         SensorModel(
             "vlp32c",
             "Velodyne VLP-32C (Ultra Puck): 32 beams from -25 to +15 deg, 0.33 deg apart around the horizon; 0.2 deg "
-            "azimuth at 10 Hz (1800 firings); 200 m; +-3 cm typical accuracy (sigma 1.5 cm)",
-            VLP32C_ELEVATIONS, 1800, False, VELODYNE_RATES, True, 1.0, 200.0, 0.015,
+            "azimuth at 10 Hz (1800 firings); 200 m; +-3 cm typical accuracy (sigma 1.5 cm); 3 mrad horizontal "
+            "divergence",
+            VLP32C_ELEVATIONS, 1800, False, VELODYNE_RATES, True, 1.0, 200.0, 0.015, 3.0,
         ),
         SensorModel(
             "os1_128",
             "Ouster OS1-128 (gen 2): 128 beams evenly over 45 deg (-22.5 to +22.5, 0.35 deg apart); 1024 columns at 10 "
-            "or 20 Hz; 0.8 to 120 m; range sigma 2 cm (datasheet: 1.5 cm at SNR > 250, 3 cm at SNR 100)",
-            tuple(np.linspace(-22.5, 22.5, 128).tolist()), 1024, True, (10.0, 20.0), False, 0.8, 120.0, 0.02,
+            "or 20 Hz; 0.8 to 120 m; range sigma 2 cm (datasheet: 1.5 cm at SNR > 250, 3 cm at SNR 100); 0.18 deg "
+            "(3.1 mrad) divergence",
+            tuple(np.linspace(-22.5, 22.5, 128).tolist()), 1024, True, (10.0, 20.0), False, 0.8, 120.0, 0.02, 3.14,
         ),
         SensorModel(
             "roof_2x32",
             "Roof rig of two VLP-32C stacked 0.2 m apart, the lower one upside down (as on Argoverse's vehicles): one "
             "merged cloud in the rig frame, ring = beam of its own sensor, field `sensor` = 0 upper, 1 lower; 50 deg "
             "vertical field of view together, 30 deg of it seen by both",
-            VLP32C_ELEVATIONS, 1800, False, VELODYNE_RATES, True, 1.0, 200.0, 0.015,
+            VLP32C_ELEVATIONS, 1800, False, VELODYNE_RATES, True, 1.0, 200.0, 0.015, 3.0,
             (Mount((0.0, 0.0, 0.1)), Mount((0.0, 0.0, -0.1), (180.0, 0.0, 0.0))),
         ),
     )
@@ -128,6 +131,7 @@ class SensorSpec:
     range_noise: float
     dropout: float
     mixed_points: float
+    divergence_mrad: float
     mounts: tuple[Mount, ...]
 
     @property
@@ -146,6 +150,12 @@ class SensorSpec:
         return 1.0 / self.rate_hz
 
     @property
+    def straddle_share(self) -> float:
+        """Chance that a beam next to a depth edge has the edge inside its footprint: half the footprint's width over
+        the azimuth step, on either side of the beam (the edge lies anywhere between two columns)."""
+        return min(1.0, self.divergence_mrad * 1e-3 / 2 / (2 * np.pi / self.columns))
+
+    @property
     def rays(self) -> int:
         """Rays cast per sweep, all sensors together."""
         return self.sensors * self.beams * self.columns
@@ -157,6 +167,7 @@ class SensorSpec:
             "rate_hz": self.rate_hz, "elevation_min_deg": float(self.elevations[0]),
             "elevation_max_deg": float(self.elevations[-1]), "min_range": self.min_range, "max_range": self.max_range,
             "range_noise": self.range_noise, "dropout": self.dropout, "mixed_points": self.mixed_points,
+            "divergence_mrad": self.divergence_mrad, "edge_straddle_share": self.straddle_share,
             "mounts": [{"position": list(m.position), "rotation_deg": list(m.rotation)} for m in self.mounts],
         }  # fmt: skip
 

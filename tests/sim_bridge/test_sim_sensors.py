@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sim_bridge.agents import agent_mesh
-from sim_bridge.lidar import MIXED_GAP, Lidar, ray_fan, surface_distance
+from sim_bridge.lidar import MIXED_GAP, Lidar, ray_fan, raycasting_scene, surface_distance
 from sim_bridge.meshes import TriangleSoup
 from sim_bridge.node import SimBridgeNode
 from sim_bridge.ros_messages import scan_cloud
@@ -163,17 +163,27 @@ def test_range_noise_has_the_model_sigma(street):
 
 
 def test_mixed_points_lie_between_the_two_surfaces_at_depth_edges(street):
-    clean, mixed = sweep(street, range_noise=0.0), sweep(street, range_noise=0.0, mixed_points=1.0)
+    puck = {"model": "vlp16", "columns": None, "range_noise": 0.0}  # 3 mrad beams 3.5 mrad apart: many straddle
+    clean, mixed = sweep(street, **puck), sweep(street, **puck, mixed_points=1.0)
     assert mixed.mixed is not None and clean.mixed is None
     flagged = np.flatnonzero(mixed.mixed)
-    assert 0.005 < len(flagged) / len(mixed) < 0.2 and (mixed.instance[flagged] > 0).sum() > 10
+    assert 0.002 < len(flagged) / len(mixed) < 0.1 and (mixed.instance[flagged] > 0).sum() > 10
+    assert sweep(street, **puck, mixed_points=0.5).mixed.sum() == pytest.approx(len(flagged) / 2, rel=0.2)
     sim, pose, dynamic, _ = street
-    surfaces = TriangleSoup.merge([sim.lidar.static, dynamic])
-    off_surface = surface_distance(surfaces, transform_points(pose, mixed.points[flagged]))
-    assert np.median(off_surface) > 0.05  # mixed points float between foreground and background
-    assert np.percentile(off_surface, 99) < MIXED_GAP[1]
-    unflagged = np.flatnonzero(~mixed.mixed)
-    assert np.percentile(surface_distance(surfaces, transform_points(pose, mixed.points[unflagged])), 99) < 1e-3
+    off_beam = beam_offsets(TriangleSoup.merge([sim.lidar.static, dynamic]), pose, mixed.points)
+    assert np.median(off_beam[flagged]) > 0.1  # short of, or beyond, the surface their own beam hits
+    assert np.percentile(off_beam[flagged], 99) < MIXED_GAP[1]
+    assert np.percentile(off_beam[~mixed.mixed], 99) < 1e-3
+
+
+def beam_offsets(surfaces: TriangleSoup, pose: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """|range of each point - range at which the beam through it (from the sensor at pose) first hits a surface|."""
+    import open3d as o3d
+
+    ranges = np.linalg.norm(points, axis=1)
+    rays = np.concatenate([np.broadcast_to(pose[:3, 3], points.shape), (points / ranges[:, None]) @ pose[:3, :3].T], 1)
+    hits = raycasting_scene(surfaces).cast_rays(o3d.core.Tensor(rays.astype(np.float32)))["t_hit"].numpy()
+    return np.abs(hits - ranges)
 
 
 def test_mixed_points_move_rigidly_with_the_surface_nearer_along_their_beam(small_scenario):
