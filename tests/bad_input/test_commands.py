@@ -123,6 +123,7 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "sim", "--agents", "0", f"--steps={d(st.integers(max_value=0))}"],
         lambda d, f: ["bench", "sim", "--agents", "0", "--json", bad_output(d, f)],
         lambda d, f: ["bench", "sim", "--scenario", hostile_yaml_file(d, f)],
+        lambda d, f: ["bench", "sim", "--agents", "0", "-p", d(bad_overrides())],
     ),
     "launch": one_of(
         lambda d, f: ["launch", hostile_yaml_file(d, f)],

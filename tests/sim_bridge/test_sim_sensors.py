@@ -234,3 +234,11 @@ def test_the_node_takes_scenario_settings_as_parameters():
         assert node.sim.lidar.spec.model == "vlp16" and node.sim.lidar.spec.columns == 900 and node.sim.dt == 0.05
     finally:
         node.destroy_node()
+
+
+def test_bench_sim_times_the_sensor_it_is_given():
+    from sim_bridge.bench import measure
+
+    short = {"route.waypoints": [[0, 0], [60, 0]], "ground.margin": 30}
+    row = measure("empty", 0, 2, 0, 0, {**short, "lidar.model": "vlp16"})
+    assert row.steps == 2 and row.step_ms_median > 0 and 10_000 < row.points_median <= 16 * 1800
