@@ -50,6 +50,7 @@ def test_eval_seg_follows_the_sensor_rate(street, tmp_path):
     assert document["source"]["sensor"] == "os1_128" and document["source"]["dt"] == pytest.approx(0.05)
     perception = document["config"]["perception"]
     assert perception["dt"] == pytest.approx(0.05) and perception["seg"]["selection"]["dt"] == pytest.approx(0.05)
+    assert perception["flow"]["rigid"]["dt"] == pytest.approx(0.05)
 
 
 def test_sensor_overrides_need_the_simulator(tmp_path, capsys):

@@ -21,7 +21,8 @@ def register(groups: CommandGroups) -> None:
         "sensors", help="flow and segmentation per LiDAR model x scenario: dynamic EPE, ego-only EPE, moving IoU",
         description="Each sensor model on each scenario over several seeds, with the nodes' default configuration: "
         "`rigid` and `ego` flow given the masks the fusion loop would give them, the default segmenter on the maskless "
-        "`rigid` flow, and the whole fusion loop given nothing (what the graph publishes). One table, one row per "
+        "`rigid` flow, and the whole fusion loop as the graph runs it (each pair's segmentation carried to the next as its "
+        "preliminary mask; what the graph publishes). One table, one row per "
         "sensor x scenario, pooled over seeds and pairs; targets (dynamic EPE <= 0.15 m and <= 0.4 x ego motion "
         "alone, moving IoU >= 0.80) are judged on the loop. Pairs are whole scans by default, as the nodes see them.")
     evaluate.add_argument("--sensors", nargs="+", default=list(sensor_names()), metavar="NAME",
@@ -36,7 +37,7 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
                           help="scenario setting for every cell, e.g. --sim-param lidar.rate_hz:=20 (repeatable)")
     evaluate.add_argument("--masks", choices=("none", "noisy", "gt"), default="noisy",
-                          help="mask given to `rigid` and `ego` (default noisy, as `ssf eval flow`); the loop gets none")
+                          help="mask given to `rigid` and `ego` (default noisy, as `ssf eval flow`); the loop makes its own")
     evaluate.add_argument("--json", type=Path, help="write the cells here (and the effective config beside them)")
     evaluate.add_argument("--threads", type=int, default=1, help="torch CPU threads (default 1)")
     add_protocol_options(evaluate)

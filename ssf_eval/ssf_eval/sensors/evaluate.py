@@ -27,7 +27,8 @@ class Targets(NamedTuple):
 
 class CellScores(NamedTuple):
     """One sensor on one scenario: flow of `rigid` and `ego` (given the masks), the fusion loop's flow and
-    segmentation (given nothing, as in the graph), and the default segmenter on the maskless `rigid` flow."""
+    segmentation (as in the graph: the previous pair's segmentation carried over as its preliminary mask), and the
+    default segmenter on the maskless `rigid` flow."""
 
     sensor: str
     scenario: str
@@ -91,9 +92,12 @@ class SensorEvaluator:
         self.perception = SsfPerception(config, device)
 
     def run(self, pairs: Iterable[ScanPair], seed: int, progress: Callable[[int], None] | None = None) -> Parts:
-        """Every stage on every pair (masks drawn from the seed, as `ssf eval flow` draws them)."""
+        """Every stage on every pair of one sequence of consecutive pairs (masks drawn from the seed, as `ssf eval
+        flow` draws them; the loop carries each pair's segmentation to the next as its preliminary mask, as the graph
+        does)."""
         rng = np.random.default_rng(seed)
         parts = Parts([], [], [], [], [], [], [], [], [])
+        self.perception.reset()
         for index, pair in enumerate(pairs):
             mask = mask_for(pair, self.masks, rng)
             started = time.perf_counter()
@@ -106,7 +110,7 @@ class SensorEvaluator:
             segmentation = self.segmenter.segment(pair.pc1, unmasked.flow, None, unmasked.ego).segmentation
             parts.segmenter.append(seg_counts(segmentation, pair))
             started = time.perf_counter()
-            loop = self.perception.loop.run(pair.pc1, pair.pc2)
+            loop = self.perception.perceive(pair.pc1, pair.pc2, follows=index > 0).fusion
             parts.loop_ms.append((time.perf_counter() - started) * 1e3)
             parts.loop_flow.append(score_flow(loop.flow, pair.flow, pair.dynamic1))
             parts.loop_seg.append(seg_counts(loop.segmentation, pair))
