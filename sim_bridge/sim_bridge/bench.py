@@ -1,4 +1,4 @@
-"""`ssf bench sim`: time one full simulator step (agents, 64x1024 rays, ground truth, PointCloud2 + CDR)."""
+"""`ssf bench sim`: time one full simulator step (agents, the sweep's rays, ground truth, PointCloud2 + CDR)."""
 
 from __future__ import annotations
 
@@ -23,14 +23,15 @@ class SimBenchRow:
     warmup: int
 
 
-def measure(scenario_name: str, agents: int, steps: int, seed: int | None, warmup: int) -> SimBenchRow:
-    """Run warm-up steps, then time steps of the full loop body in this process."""
+def measure(scenario_name: str, agents: int, steps: int, seed: int | None, warmup: int,
+            overrides: dict | None = None) -> SimBenchRow:
+    """Run warm-up steps, then time steps of the full loop body in this process (scenario settings overridden)."""
     from sim_bridge.ros_messages import scan_cloud
     from sim_bridge.scenario import load_scenario
     from sim_bridge.simulator import Simulator
     from ssf_common import messages
 
-    scenario = load_scenario(scenario_name, {"agents.count": agents})
+    scenario = load_scenario(scenario_name, {**(overrides or {}), "agents.count": agents})
     sim = Simulator(scenario, seed)
     frame = sim.reset()
     driver = sim.follower()
@@ -54,15 +55,17 @@ def measure(scenario_name: str, agents: int, steps: int, seed: int | None, warmu
     )
 
 
-def _measure_in_child(queue, scenario_name: str, agents: int, steps: int, seed: int | None, warmup: int) -> None:
+def _measure_in_child(queue, scenario_name: str, agents: int, steps: int, seed: int | None, warmup: int,
+                      overrides: dict | None = None) -> None:
     try:
-        queue.put(measure(scenario_name, agents, steps, seed, warmup))
+        queue.put(measure(scenario_name, agents, steps, seed, warmup, overrides))
     except Exception as err:  # noqa: BLE001 - reported to the parent as one line
         queue.put(f"{type(err).__name__}: {err}")
 
 
 def run_bench(
-    scenario_name: str, agent_counts: list[int], steps: int, seed: int | None, warmup: int = 20, progress=None
+    scenario_name: str, agent_counts: list[int], steps: int, seed: int | None, warmup: int = 20, progress=None,
+    overrides: dict | None = None,
 ) -> list[SimBenchRow]:
     """One fresh process per agent count, so each peak RSS is its own."""
     from ssf_common.errors import SsfError
@@ -71,7 +74,7 @@ def run_bench(
     rows = []
     for agents in agent_counts:
         queue = context.Queue()
-        child = context.Process(target=_measure_in_child, args=(queue, scenario_name, agents, steps, seed, warmup))
+        child = context.Process(target=_measure_in_child, args=(queue, scenario_name, agents, steps, seed, warmup, overrides))
         child.start()
         result = queue.get()
         child.join()

@@ -57,8 +57,9 @@ def register(groups: CommandGroups) -> None:
     export.add_argument("--scenario", required=True, help="shipped scenario name or a YAML file")
     export.add_argument("--seed", type=int, default=None)
     export.add_argument("--frames", type=int, required=True, help="number of consecutive pairs")
-    export.add_argument("--warmup", type=float, default=2.0, metavar="S",
-                        help="simulated seconds before the first pair, so that the traffic is moving (default 2)")
+    export.add_argument("--warmup", type=float, default=None, metavar="S",
+                        help="simulated seconds before the first pair, so that the traffic is moving (default: the "
+                        "scenario's episode.warmup_s, 2 s unless it says otherwise)")
     export.add_argument("--out", type=Path, required=True)
     add_protocol_options(export)
     add_override_option(export)
@@ -67,8 +68,8 @@ def register(groups: CommandGroups) -> None:
     bench = groups.bench.add_parser(
         "sim",
         help="simulator step time and memory per agent count",
-        description="Time one full step (agents, 64x1024 ray casting, ground truth, PointCloud2 + CDR) "
-        "per agent count.",
+        description="Time one full step (agents, ray casting of the scenario's LiDAR (64x1024 rays by default), "
+        "ground truth, PointCloud2 + CDR) per agent count; -p changes the scenario (-p lidar.model:=os1_128).",
     )
     bench.add_argument("--agents", default="0,100,500,1000", help="comma-separated agent counts")
     bench.add_argument("--steps", type=int, default=50, help="timed steps per agent count")
@@ -76,6 +77,7 @@ def register(groups: CommandGroups) -> None:
     bench.add_argument("--scenario", default="crowd_1000", help="scenario whose agent count is varied")
     bench.add_argument("--seed", type=int, default=None)
     bench.add_argument("--json", type=Path, default=None, metavar="FILE")
+    add_override_option(bench)
     bench.set_defaults(func=_bench)
 
 
@@ -228,7 +230,8 @@ def _bench(args: argparse.Namespace) -> int:
         raise ConfigError(f"--agents {args.agents!r}: expected non-negative agent counts")
     if args.steps < 1:
         raise ConfigError(f"--steps must be at least 1, got {args.steps}")
-    load_scenario(args.scenario)  # fail fast on a bad name
+    overrides = overrides_from_pairs(args.set)
+    load_scenario(args.scenario, overrides)  # fail fast on a bad name or setting
 
     def progress(row) -> None:
         print(
@@ -243,7 +246,7 @@ def _bench(args: argparse.Namespace) -> int:
         require_seed(args.seed)
     if args.json:
         check_writable(args.json, "--json figures")
-    rows = run_bench(args.scenario, counts, args.steps, args.seed, args.warmup, progress)
+    rows = run_bench(args.scenario, counts, args.steps, args.seed, args.warmup, progress, overrides)
     payload = [asdict(row) for row in rows]
     print(dumps_strict(payload))
     if args.json:

@@ -20,8 +20,10 @@ LOOK_AROUND = 80.0
 class RouteFollower:
     """Follows the route at the reference speed and keeps clear of agents in its lane."""
 
-    def __init__(self, world: World, lane_offset: float, reference_speed: float, length: float, width: float):
+    def __init__(self, world: World, lane_offset: float, reference_speed: float, length: float, width: float,
+                 lane_changes: bool = True):
         self.world = world
+        self.lane_changes = lane_changes
         self.lanes = [float(offset) for offset in world.section.lane_centres]
         self.lane_offset = lane_offset
         self.reference_speed = reference_speed
@@ -30,8 +32,8 @@ class RouteFollower:
 
     def command(self, pose: np.ndarray, speed: float, agents: AgentStates, outcome: Outcome) -> VelocityCommand:
         """The command for the ego at base pose (world <- base_link) and forward speed."""
-        if outcome != Outcome.RUNNING:
-            return VelocityCommand(0.0, 0.0)
+        if outcome != Outcome.RUNNING or self.reference_speed <= 0.0:
+            return VelocityCommand(0.0, 0.0)  # done, or told to hold the ego where it is
         xy, yaw = pose[:2, 3], float(np.arctan2(pose[1, 0], pose[0, 0]))
         s, d = (value[0] for value in self.world.centreline.to_frenet(xy[None]))
         near = agents.take(np.linalg.norm(agents.position[:, :2] - xy, axis=1) < LOOK_AROUND)
@@ -62,8 +64,8 @@ class RouteFollower:
         agents: AgentStates,
         now: tuple[np.ndarray, np.ndarray],
     ) -> None:
-        """Move to a clearly faster right-hand lane when nobody is close behind in it."""
-        if abs(d - self.lane_offset) > 0.5:
+        """Move to a clearly faster right-hand lane when nobody is close behind in it (if lane changes are allowed)."""
+        if not self.lane_changes or abs(d - self.lane_offset) > 0.5:
             return  # still changing lanes
         best = max(self.lanes, key=lambda lane: (lane_speed[lane], -abs(lane - self.lanes[0])))
         if best != self.lane_offset and lane_speed[best] > lane_speed[self.lane_offset] + LANE_CHANGE_GAIN:

@@ -10,7 +10,7 @@ from pydantic import Field
 
 from sim_bridge import ros_messages
 from sim_bridge.ego import VelocityCommand
-from sim_bridge.scenario import load_scenario, overrides_from_pairs
+from sim_bridge.scenario import Scenario, load_scenario, overrides_from_pairs
 from sim_bridge.simulator import Frame, Simulator, episode_summary
 from ssf_common.diagnostics import StageStats, advertise
 from ssf_common import topics
@@ -23,6 +23,8 @@ from ssf_common.paths import check_writable
 
 
 DISCOVERY_SETTLE_S = 0.5
+SCENARIO_SECTIONS = frozenset(name for name, field in Scenario.model_fields.items()
+                              if isinstance(field.annotation, type) and issubclass(field.annotation, Section))
 
 
 class Mode(str, Enum):
@@ -40,7 +42,8 @@ class Driver(str, Enum):
 
 
 class SimNodeConfig(Section):
-    """Parameters of sim_bridge (same names in YAML, --ros-args -p and `ssf sim` flags)."""
+    """Parameters of sim_bridge (same names in YAML, --ros-args -p and `ssf sim` flags). Scenario settings are
+    parameters too, by their dotted names (-p lidar.model:=vlp16, -p agents.count:=20), over `overrides`."""
 
     scenario: str = "urban_100"
     overrides: list[str] = Field(default_factory=list, description="scenario settings as NAME=VALUE, e.g. agents.count=20")
@@ -67,7 +70,8 @@ class SimBridgeNode(Node):
         for path, what in ((self.config.summary, "episode summary"), (self.config.render, "episode picture")):
             if path:
                 check_writable(path, what)  # before the episode, not after it
-        scenario = load_scenario(self.config.scenario, overrides_from_pairs(self.config.overrides, "overrides"))
+        overrides = {**overrides_from_pairs(self.config.overrides, "overrides"), **self._scenario_parameters()}
+        scenario = load_scenario(self.config.scenario, overrides)
         self.sim = Simulator(scenario, None if self.config.seed < 0 else self.config.seed)
         self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
         self.command = VelocityCommand()
@@ -100,6 +104,11 @@ class SimBridgeNode(Node):
             f"scenario '{self.config.scenario}' seed {self.sim.seed}: {scenario.agents.count} agents, "
             f"route {self.sim.world.route_length:.0f} m, {self.config.mode.value}, driver {self.config.driver.value}"
         )
+
+    def _scenario_parameters(self) -> dict[str, Any]:
+        """Scenario settings given as parameters by their dotted names (-p lidar.model:=vlp16), over `overrides`."""
+        names = [name for name in self.undeclared_overrides() if name.partition(".")[0] in SCENARIO_SECTIONS]
+        return {name: self.declare_parameter(name).value for name in names}
 
     def _tick_period(self) -> float:
         if self.config.mode is Mode.REALTIME:

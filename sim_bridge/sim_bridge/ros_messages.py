@@ -26,9 +26,11 @@ _OBSTACLE_KIND = {AgentKind.VEHICLE: ObstacleKind.VEHICLE, AgentKind.PEDESTRIAN:
 
 
 def scan_cloud(scan: Scan, stamp_ns: int) -> Any:
-    """/lidar/points: x, y, z, intensity, ring, time in the sensor frame."""
+    """/lidar/points: x, y, z, intensity, ring, time in the sensor frame (and sensor, the rig member, for a rig)."""
+    extra = {} if scan.sensor is None else {"sensor": scan.sensor}
     return xyz_to_cloud(
-        scan.points, messages.header(stamp_ns, LIDAR_FRAME), intensity=scan.intensity, ring=scan.ring, time=scan.time
+        scan.points, messages.header(stamp_ns, LIDAR_FRAME), intensity=scan.intensity, ring=scan.ring, time=scan.time,
+        **extra,
     )
 
 

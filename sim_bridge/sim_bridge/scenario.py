@@ -5,8 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
+from sim_bridge.sensors import SENSOR_MODELS, SensorSpec
 from ssf_common.config import Section, build, parse_overrides, read_yaml
 from ssf_common.errors import ConfigError
 
@@ -72,35 +74,78 @@ class AgentsConfig(Section):
     horizon: float = Field(1.5, gt=0.1, le=10.0)
     neighbour_radius: float = Field(7.0, ge=3.0, le=50.0)
     keep_clear_of_start: float = Field(25.0, ge=0.0, le=500.0)
+    lane_speeds: list[SpeedRange] = Field(default_factory=list, max_length=4, description="preferred speed range of "
+                                          "the vehicles in each lane (0 = innermost); lanes not listed use vehicle_speed")
+    crossing_share: float = Field(0.25, ge=0.0, le=1.0, description="share of pedestrians whose walk crosses the road")
 
     @model_validator(mode="after")
     def _ranges(self) -> AgentsConfig:
         _check_range("vehicle_speed", self.vehicle_speed)
         _check_range("pedestrian_speed", self.pedestrian_speed)
-        if self.vehicle_speed[1] > 30.0 or self.pedestrian_speed[1] > 5.0:
+        for lane, speeds in enumerate(self.lane_speeds):
+            _check_range(f"lane_speeds[{lane}]", speeds)
+        if max([self.vehicle_speed[1], *(high for _, high in self.lane_speeds)]) > 30.0 or self.pedestrian_speed[1] > 5.0:
             raise ValueError("speeds above 30 m/s (vehicles) or 5 m/s (pedestrians) are not supported")
         return self
 
 
 class LidarConfig(Section):
-    """Spinning LiDAR: beams, columns, vertical field of view, range, noise and dropout."""
+    """The LiDAR: a datasheet model (`model`), its rotation rate, and overrides of any of the model's numbers.
 
-    beams: int = Field(64, ge=1, le=256)
-    columns: int = Field(1024, ge=16, le=8192)
-    fov_down: float = Field(-24.9, ge=-90.0, le=0.0)
-    fov_up: float = Field(2.0, ge=-30.0, le=90.0)
-    max_range: float = Field(100.0, gt=1.0, le=500.0)
-    min_range: float = Field(1.0, ge=0.0, le=10.0)
-    range_noise: float = Field(0.01, ge=0.0, le=1.0)
-    dropout: float = Field(0.0, ge=0.0, lt=1.0)
+    Fields left null take the model's value. Setting beams, fov_down or fov_up replaces the model's elevation table
+    by that many beams spread evenly between fov_down and fov_up (the model's count and limits where not set).
+    """
+
+    model: str = Field("hdl64e", description="hdl64e | vlp16 | vlp32c | os1_128 | roof_2x32")
+    rate_hz: float = Field(10.0, ge=5.0, le=20.0, description="revolutions per second; one simulator step per sweep")
+    beams: int | None = Field(None, ge=1, le=256)
+    columns: int | None = Field(None, ge=16, le=8192, description="firings per beam and revolution")
+    fov_down: float | None = Field(None, ge=-90.0, le=0.0)
+    fov_up: float | None = Field(None, ge=-30.0, le=90.0)
+    max_range: float | None = Field(None, gt=1.0, le=500.0)
+    min_range: float | None = Field(None, ge=0.0, le=10.0)
+    range_noise: float | None = Field(None, ge=0.0, le=1.0, description="Gaussian range error, sigma (m)")
+    dropout: float = Field(0.0, ge=0.0, lt=1.0, description="probability of losing a return")
+    mixed_points: float = Field(0.0, ge=0.0, le=1.0, description="probability that a beam whose footprint straddles "
+                                "a depth edge returns one merged echo: a point between the two surfaces")
     mount_height: float = Field(1.8, ge=0.5, le=5.0)
     frame_id: str = "lidar"
 
     @model_validator(mode="after")
-    def _fov(self) -> LidarConfig:
-        if self.fov_up <= self.fov_down:
-            raise ValueError(f"fov_up ({self.fov_up}) must be above fov_down ({self.fov_down})")
+    def _consistent(self) -> LidarConfig:
+        if self.model not in SENSOR_MODELS:
+            raise ValueError(f"lidar.model '{self.model}' is not a sensor model; choose one of {', '.join(SENSOR_MODELS)}")
+        model = SENSOR_MODELS[self.model]
+        if not model.allows_rate(self.rate_hz):
+            raise ValueError(f"lidar.rate_hz {self.rate_hz:g}: the {self.model} spins at {model.rates_text()}")
+        spec = self.spec()
+        if spec.elevations[-1] <= spec.elevations[0] and spec.beams > 1:
+            raise ValueError(f"fov_up ({spec.elevations[-1]:g}) must be above fov_down ({spec.elevations[0]:g})")
+        if spec.min_range >= spec.max_range:
+            raise ValueError(f"lidar.min_range ({spec.min_range:g}) must be below lidar.max_range ({spec.max_range:g})")
         return self
+
+    def spec(self) -> SensorSpec:
+        """The effective sensor: the model's datasheet values with this section's overrides."""
+        model = SENSOR_MODELS[self.model]
+        elevations = np.asarray(model.elevations, np.float64)
+        if self.beams is not None or self.fov_down is not None or self.fov_up is not None:
+            low = elevations[0] if self.fov_down is None else self.fov_down
+            high = elevations[-1] if self.fov_up is None else self.fov_up
+            elevations = np.linspace(low, high, len(elevations) if self.beams is None else self.beams)
+        return SensorSpec(
+            model=self.model,
+            elevations=elevations,
+            columns=model.columns_at(self.rate_hz) if self.columns is None else self.columns,
+            rate_hz=self.rate_hz,
+            min_range=model.min_range if self.min_range is None else self.min_range,
+            max_range=model.max_range if self.max_range is None else self.max_range,
+            range_noise=model.range_noise if self.range_noise is None else self.range_noise,
+            dropout=self.dropout,
+            mixed_points=self.mixed_points,
+            divergence_mrad=model.divergence_mrad,
+            mounts=model.mounts,
+        )
 
 
 class EgoConfig(Section):
@@ -117,16 +162,23 @@ class EgoConfig(Section):
     max_decel: float = Field(6.0, gt=0.0, le=20.0)
     max_yaw_rate: float = Field(1.0, gt=0.0, le=5.0)
     max_steer: float = Field(0.6, gt=0.0, le=1.2)
-    reference_speed: float = Field(10.0, gt=0.0, le=40.0)
+    reference_speed: float = Field(10.0, ge=0.0, le=40.0, description="the route follower's speed; 0 holds the ego still")
     lane: int = Field(0, ge=0, le=3)
+    lane_changes: bool = Field(True, description="the route follower may change to a faster right-hand lane")
     goal_tolerance: float = Field(3.0, gt=0.0, le=50.0)
+    start_s: float = Field(0.0, ge=-400.0, le=5000.0, description="start along the route (m from its first waypoint)")
+    start_offset: float | None = Field(None, ge=-50.0, le=50.0, description="start left of the centreline (m); "
+                                       "null: the centre of `lane`")
+    start_heading: float = Field(0.0, ge=-180.0, le=180.0, description="start heading relative to the road (deg)")
 
 
 class EpisodeConfig(Section):
-    """Episode timing."""
+    """Episode timing: one step per LiDAR sweep, so dt is the sweep period (1 / lidar.rate_hz)."""
 
-    dt: float = Field(0.1, gt=0.0, le=1.0)
+    dt: float = Field(0.1, ge=0.05, le=0.2, description="seconds per step = per sweep; follows lidar.rate_hz")
     time_limit: float = Field(300.0, gt=0.0, le=100000.0)
+    warmup_s: float = Field(2.0, ge=0.0, le=600.0, description="simulated seconds before evaluation pairs are cut "
+                            "(the traffic starts from rest)")
 
 
 class Scenario(Section):
@@ -142,6 +194,27 @@ class Scenario(Section):
     lidar: LidarConfig = LidarConfig()
     ego: EgoConfig = EgoConfig()
     episode: EpisodeConfig = EpisodeConfig()
+
+    @model_validator(mode="before")
+    @classmethod
+    def _one_step_per_sweep(cls, data: Any) -> Any:
+        """The sweep period sets the step: dt follows lidar.rate_hz (or, given alone, sets it); both must agree."""
+        if not isinstance(data, dict):
+            return data
+        lidar, episode = data.get("lidar") or {}, data.get("episode") or {}
+        rate, dt = _field(lidar, "rate_hz"), _field(episode, "dt")
+        if rate is None and dt is None:
+            return data
+        if not all(isinstance(v, (int, float)) and not isinstance(v, bool) and v > 0 for v in (rate, dt) if v is not None):
+            return data  # the fields' own validation names the bad value
+        if dt is None:
+            return {**data, "episode": _with_field(episode, "dt", 1.0 / rate)}
+        if rate is None:
+            return {**data, "lidar": _with_field(lidar, "rate_hz", 1.0 / dt)}
+        if abs(rate * dt - 1.0) > 1e-6:
+            raise ValueError(f"episode.dt {dt:g} s and lidar.rate_hz {rate:g} disagree: the simulator steps once per "
+                             "sweep, so set one of them")
+        return data
 
     @model_validator(mode="after")
     def _route_fits(self) -> Scenario:
@@ -167,6 +240,18 @@ class Scenario(Section):
                 f"that is a ground grid of {cells:.3g} cells at ground.resolution {ground.resolution:g} m, more than "
                 f"{MAX_GROUND_CELLS}"
             )
+
+
+def _field(section: Any, name: str) -> Any:
+    """A field of a section given as a dict or a model (None when absent)."""
+    return section.get(name) if isinstance(section, dict) else getattr(section, name, None)
+
+
+def _with_field(section: Any, name: str, value: float) -> Any:
+    """A copy of a section (dict or model) with one field set."""
+    if isinstance(section, dict):
+        return {**section, name: value}
+    return {**section.model_dump(), name: value}
 
 
 def scenario_dir() -> Path:

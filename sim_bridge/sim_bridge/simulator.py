@@ -72,12 +72,11 @@ class Simulator:
 
     def reset(self) -> Frame:
         """Start the episode: spawn agents, place the ego at the start, take the first scan."""
-        start_xy = self.world.centreline.to_xy(np.array(0.0), np.array(self.lane_offset))
-        heading = float(self.world.centreline.heading(np.array(0.0)))
+        start_xy, heading = self.world.start.xy, self.world.start.yaw
         self.ego = EgoVehicle(
             self.scenario.ego, self.world.ground, EgoState(float(start_xy[0]), float(start_xy[1]), heading, 0.0, 0.0)
         )
-        self.traffic = Traffic(self.world, self.scenario.agents, np.random.default_rng([self.seed, 2]), start_xy)
+        self.traffic = place_traffic(self.world, self.seed)
         self._noise = np.random.default_rng([self.seed, 3])
         self.index = 0
         self.distance = 0.0
@@ -103,7 +102,7 @@ class Simulator:
     def follower(self) -> RouteFollower:
         """The built-in route follower for this scenario's ego lane and reference speed."""
         cfg = self.scenario.ego
-        return RouteFollower(self.world, self.lane_offset, cfg.reference_speed, cfg.length, cfg.width)
+        return RouteFollower(self.world, self.lane_offset, cfg.reference_speed, cfg.length, cfg.width, cfg.lane_changes)
 
     def route_waypoints(self, length: float | None = None, spacing: float = 2.0) -> np.ndarray:
         """(N, 3) world points of the ego's lane from the start to the goal (or `length` metres along it)."""
@@ -202,7 +201,7 @@ class Simulator:
         base = self.ego.base_pose()
         pose = base @ self.mount
         agents = self.traffic.states()
-        dynamic = agent_mesh(agents, pose[:2, 3], self.scenario.lidar.max_range)
+        dynamic = agent_mesh(agents, pose[:2, 3], self.lidar.spec.max_range)
         scan = self.lidar.scan(pose, dynamic, self._noise)
         flow = None
         if previous is not None:
@@ -230,6 +229,11 @@ class Simulator:
     def agent_surfaces(self, agents: AgentStates):
         """Triangles of every agent (for checking ground truth against surfaces)."""
         return agent_mesh(agents, np.zeros(2), np.inf)
+
+
+def place_traffic(world: World, seed: int) -> Traffic:
+    """The agents of an episode at their start (a ConfigError when this seed cannot place them all)."""
+    return Traffic(world, world.scenario.agents, np.random.default_rng([seed, 2]), world.start.xy)
 
 
 def episode_summary(sim: Simulator, wall_seconds: float, step_ms: list[float] | None = None) -> dict[str, object]:

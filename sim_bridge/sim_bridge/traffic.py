@@ -24,7 +24,6 @@ from ssf_common.errors import ConfigError
 AVOID_ITERATIONS = 6
 SPAWN_ROUNDS = 100
 IDM_MIN_GAP = 2.0
-CROSSING_SHARE = 0.25
 CROSSWALK_HALF_WIDTH = 2.5
 CROSSWALK_CYCLE = 40.0
 CROSSWALK_WALK = 12.0
@@ -58,6 +57,7 @@ class Traffic:
         self.max_yaw_rate = np.where(vehicles, 1.2, 6.0)
         self.sidestep = np.where(vehicles, 0.0, 0.6)
         self.loops = self._loops(rng, vehicles)
+        self._lane_speeds(rng, vehicles)
         self.cover = self._cover(vehicles)
         self.ids = np.arange(1, count + 1, dtype=np.int32)
         self.progress = np.zeros(count)
@@ -84,7 +84,7 @@ class Traffic:
             ped_a = line.start + 5.0 + rng.random(count) * (line.end - line.start - 10.0 - span)
             ped_b = ped_a + span
         side = np.where(rng.random(count) < 0.5, -1.0, 1.0)
-        crossing = rng.random(count) < CROSSING_SHARE
+        crossing = rng.random(count) < self.cfg.crossing_share
         room = line.end - line.start - 10.0
         stroll_length = np.minimum(rng.uniform(40, 200, count), room)
         stroll = line.start + 5.0 + rng.random(count) * (room - stroll_length)
@@ -97,6 +97,16 @@ class Traffic:
         d_a = np.where(vehicles, -lanes, side * np.where(crossing, walk, low))
         d_b = np.where(vehicles | crossing, -d_a, side * high)
         return Loops(s_a, s_b, d_a, d_b)
+
+    def _lane_speeds(self, rng: np.random.Generator, vehicles: np.ndarray) -> None:
+        """Vehicles in a lane that agents.lane_speeds lists draw their preferred speed from that lane's range."""
+        if not self.cfg.lane_speeds:
+            return  # no draws: scenarios without lane speeds keep their random sequence
+        lanes = np.abs(self.world.section.lane_centres)
+        lane = np.abs(np.abs(self.loops.d_a)[:, None] - lanes[None]).argmin(1)
+        for index, (low, high) in enumerate(self.cfg.lane_speeds[: len(lanes)]):
+            chosen = np.flatnonzero(vehicles & (lane == index))
+            self.speed[chosen] = rng.uniform(low, high, len(chosen))
 
     def _cover(self, vehicles: np.ndarray) -> DiscCover:
         index = np.arange(len(vehicles))

@@ -7,12 +7,14 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
+from sim_bridge.footprints import Rectangles, point_rectangle_distance, rectangles_overlap
 from sim_bridge.meshes import BOX, CYLINDER, SPHERE, TriangleSoup, instances
 from sim_bridge.scenario import Scenario
 from ssf_common.dataset.pairs import PointClass  # noqa: F401  (the simulator labels its points with it)
 from ssf_common.errors import ConfigError
 
 SAMPLE_STEP = 0.25
+START_CLEARANCE = 3.0  # no structure within this distance (m) of the ego's footprint where it starts
 
 
 @dataclass(frozen=True)
@@ -206,6 +208,14 @@ class Ground:
 
 
 @dataclass(frozen=True)
+class EgoStart:
+    """Where the ego starts: position (x, y) and heading (rad)."""
+
+    xy: np.ndarray
+    yaw: float
+
+
+@dataclass(frozen=True)
 class Structure:
     """Static obstacles: oriented boxes (buildings, walls, parked cars) and upright cylinders (poles, trunks)."""
 
@@ -230,7 +240,8 @@ class World:
             self.centreline.points.min(0) - margin, self.centreline.points.max(0) + margin, scenario, rng
         )
         self.crosswalks = self._crosswalks()
-        self.structure = self._structure(rng)
+        self.start = self._ego_start()
+        self.structure = self._clear_of_start(self._structure(rng))
         self._box_tree = cKDTree(self.structure.boxes[:, :2]) if len(self.structure.boxes) else None
         self._box_radius = (
             float(np.hypot(self.structure.boxes[:, 3], self.structure.boxes[:, 4]).max() / 2)
@@ -247,6 +258,35 @@ class World:
     def lane_offset(self, lane: int) -> float:
         """Lateral offset of a right-hand lane (0 = innermost)."""
         return float(self.section.lane_centres[lane])
+
+    def lane_offset_of_start(self) -> float:
+        """Lateral offset the ego starts at: ego.start_offset, else the centre of its lane."""
+        ego = self.scenario.ego
+        return self.lane_offset(ego.lane) if ego.start_offset is None else ego.start_offset
+
+    def _ego_start(self) -> EgoStart:
+        """Where the ego starts: ego.start_s along the route, its offset, its heading relative to the road."""
+        ego = self.scenario.ego
+        line = self.centreline
+        if not line.start + ego.length <= ego.start_s <= line.end - ego.length:
+            raise ConfigError(f"ego.start_s {ego.start_s:g} m is off the road (it runs from {line.start:g} to "
+                              f"{line.end:.0f} m along the route)")
+        xy = line.to_xy(np.array(ego.start_s), np.array(self.lane_offset_of_start()))
+        heading = float(line.heading(np.array(ego.start_s))) + np.radians(ego.start_heading)
+        return EgoStart(xy.astype(np.float64), float(np.angle(np.exp(1j * heading))))
+
+    def _clear_of_start(self, structure: Structure) -> Structure:
+        """The structure without whatever stands within START_CLEARANCE of the ego's footprint at its start."""
+        ego = self.scenario.ego
+        zone = Rectangles(self.start.xy[None], np.array([self.start.yaw]), np.array([ego.length + 2 * START_CLEARANCE]),
+                          np.array([ego.width + 2 * START_CLEARANCE]))
+        boxes, cylinders, crowns = structure.boxes, structure.cylinders, structure.crowns
+        keep_boxes = ~rectangles_overlap(zone.take(np.zeros(len(boxes), int)), Rectangles(
+            boxes[:, :2], boxes[:, 2], boxes[:, 3], boxes[:, 4]))
+        keep_cylinders = point_rectangle_distance(cylinders[:, :2], zone.take(np.zeros(len(cylinders), int))) > cylinders[:, 2]
+        keep_crowns = point_rectangle_distance(crowns[:, :2], zone.take(np.zeros(len(crowns), int))) > 0.25
+        return Structure(boxes[keep_boxes], structure.box_classes[keep_boxes], cylinders[keep_cylinders],
+                         structure.cylinder_classes[keep_cylinders], crowns[keep_crowns])
 
     def _crosswalks(self) -> np.ndarray:
         spacing = self.scenario.route.crosswalk_spacing

@@ -12,9 +12,11 @@ def register(groups: CommandGroups) -> None:
     from ssf_eval.odom import cli as odom
     from ssf_eval.plan import cli as plan
     from ssf_eval.seg import cli as seg
+    from ssf_eval.sensors import cli as sensors
 
     flow.register(groups)
     seg.register(groups)
     nav.register(groups)
     plan.register(groups)
     odom.register(groups)
+    sensors.register(groups)

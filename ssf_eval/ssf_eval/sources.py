@@ -10,7 +10,9 @@ from typing import Any
 import numpy as np
 
 from sim_bridge.cli import add_protocol_options, protocol_from_args
-from sim_bridge.dataset.export import DEFAULT_WARMUP_S, PROTOCOLS, PairProtocol, generate_pairs
+from sim_bridge.dataset.export import PROTOCOLS, PairProtocol, generate_pairs
+from sim_bridge.scenario import Scenario, load_scenario, overrides_from_pairs
+from sim_bridge.sensors import sensor_names
 from ssf_common import topics
 from ssf_common.dataset.pairs import ScanPair, make_pair, read_pairs
 from ssf_common.errors import ConfigError, DataError
@@ -38,15 +40,37 @@ def add_pair_source_options(parser: argparse.ArgumentParser, default_scenario: s
     source.add_argument("--bag", type=Path, help=f"recorded bag with {GT_FLOW_TOPIC} (a recorded simulator run)")
     parser.add_argument("--seed", type=int, default=0, help="simulator seed (default 0: never used in training)")
     parser.add_argument("--frames", type=int, default=default_frames, help=f"pairs to use (default {default_frames})")
-    parser.add_argument("--warmup", type=float, default=DEFAULT_WARMUP_S, metavar="S",
-                        help=f"simulated seconds before the first pair: the traffic starts from rest (default {DEFAULT_WARMUP_S:g})")
+    parser.add_argument("--warmup", type=float, default=None, metavar="S",
+                        help="simulated seconds before the first pair: the traffic starts from rest (default: the "
+                        "scenario's episode.warmup_s, 2 s unless it says otherwise)")
+    add_sensor_options(parser)
     add_protocol_options(parser)
+
+
+def add_sensor_options(parser: argparse.ArgumentParser) -> None:
+    """--sensor NAME and --sim-param NAME:=VALUE: what the simulator source is changed to."""
+    parser.add_argument("--sensor", choices=sensor_names(), metavar="NAME",
+                        help=f"LiDAR model of the simulator ({', '.join(sensor_names())}); short for "
+                        "--sim-param lidar.model:=NAME (default: the scenario's)")
+    parser.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
+                        help="scenario setting of the simulator source, e.g. --sim-param lidar.rate_hz:=20 (repeatable)")
+
+
+def sim_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The scenario overrides that --sim-param and --sensor name (--sensor last: it wins)."""
+    overrides = overrides_from_pairs(list(getattr(args, "sim_param", None) or []), "--sim-param")
+    if getattr(args, "sensor", None):
+        overrides["lidar.model"] = args.sensor
+    return overrides
 
 
 def pairs_from_args(args: argparse.Namespace) -> PairSet:
     """The pairs the source flags name."""
     if args.frames < 1:
         raise ConfigError(f"--frames must be at least 1, got {args.frames}")
+    overrides = sim_overrides(args)
+    if overrides and (args.data is not None or getattr(args, "bag", None) is not None):
+        raise ConfigError("--sensor and --sim-param change the simulator: they need --scenario, not --data or --bag")
     if args.data is not None:
         pairs = list(read_pairs(args.data))[: args.frames]
         return PairSet(pairs, f"data {args.data}", {"data": str(args.data), "pairs": len(pairs)})
@@ -54,16 +78,36 @@ def pairs_from_args(args: argparse.Namespace) -> PairSet:
     if getattr(args, "bag", None) is not None:
         pairs = bag_pairs(args.bag, protocol, args.frames, args.seed)
         return PairSet(pairs, f"bag {args.bag}", {"bag": str(args.bag), "pairs": len(pairs), "protocol": protocol})
-    return simulator_pairs(args.scenario, args.seed, args.frames, protocol, args.warmup)
+    return simulator_pairs(args.scenario, args.seed, args.frames, protocol, args.warmup, overrides)
 
 
 def simulator_pairs(scenario: str, seed: int, frames: int, protocol: PairProtocol = PROTOCOLS["paper"],
-                    warmup_s: float = DEFAULT_WARMUP_S) -> PairSet:
-    """frames pairs of a scenario after warmup_s seconds, cut by the protocol."""
-    pairs = list(generate_pairs(scenario, seed, frames, protocol, warmup_s))
-    description = f"scenario {scenario} seed {seed}, {len(pairs)} pairs after {warmup_s:g} s"
+                    warmup_s: float | None = None, overrides: dict[str, Any] | None = None) -> PairSet:
+    """frames pairs of a scenario (with dotted overrides) after warmup_s seconds (None: the scenario's), cut by the
+    protocol."""
+    loaded = load_scenario(scenario, overrides or {})
+    warmup_s = loaded.episode.warmup_s if warmup_s is None else warmup_s
+    pairs = list(generate_pairs(loaded, seed, frames, protocol, warmup_s))
+    spec = loaded.lidar.spec()
+    description = (f"scenario {scenario} seed {seed}, {spec.model} at {spec.rate_hz:g} Hz, {len(pairs)} pairs after "
+                   f"{warmup_s:g} s")
     return PairSet(pairs, description, {"scenario": scenario, "seed": seed, "pairs": len(pairs), "warmup_s": warmup_s,
-                                        "protocol": protocol})
+                                        "protocol": protocol, "sensor": spec.model, "dt": loaded.episode.dt,
+                                        "overrides": dict(overrides or {})})
+
+
+def source_scenario(args: argparse.Namespace) -> Scenario | None:
+    """The scenario the source flags simulate (None for --data and --bag): checked before any work starts."""
+    if getattr(args, "scenario", None) is None:
+        return None
+    return load_scenario(args.scenario, sim_overrides(args))
+
+
+def sweep_period_layer(scenario: Scenario) -> dict[str, Any]:
+    """Perception config values that follow the simulated sensor: the time between scans (dt, flow.rigid.dt,
+    seg.selection.dt)."""
+    dt = scenario.episode.dt
+    return {"dt": dt, "flow": {"rigid": {"dt": dt}}, "seg": {"selection": {"dt": dt}}}
 
 
 def bag_pairs(path: Path, protocol: PairProtocol, limit: int, seed: int = 0) -> list[ScanPair]:

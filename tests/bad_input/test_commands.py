@@ -123,6 +123,7 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "sim", "--agents", "0", f"--steps={d(st.integers(max_value=0))}"],
         lambda d, f: ["bench", "sim", "--agents", "0", "--json", bad_output(d, f)],
         lambda d, f: ["bench", "sim", "--scenario", hostile_yaml_file(d, f)],
+        lambda d, f: ["bench", "sim", "--agents", "0", "-p", d(bad_overrides())],
     ),
     "launch": one_of(
         lambda d, f: ["launch", hostile_yaml_file(d, f)],
@@ -232,6 +233,18 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--json", bad_output(d, f)],
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--odom-config", hostile_yaml_file(d, f)],
     ),
+    "bench graph": one_of(  # a bad --scenario is only noticed once the graph runs: not a case here yet
+        lambda d, f: ["bench", "graph", f"--duration={d(not_positive())}"],
+        lambda d, f: ["bench", "graph", "--json", bad_output(d, f)],
+    ),
+    "eval sensors": one_of(
+        lambda d, f: ["eval", "sensors", "--seeds", d(st.sampled_from(["a", "-1", "5-3", "1.5", "", "0-99999"]))],
+        lambda d, f: ["eval", "sensors", "--scenarios", hostile_yaml_file(d, f)],
+        lambda d, f: ["eval", "sensors", "--sensors", d(st.sampled_from(["vlp64", "vlp16,x", "os1"]))],
+        lambda d, f: ["eval", "sensors", "--sim-param", d(bad_overrides())],
+        lambda d, f: ["eval", "sensors", "--config", hostile_yaml_file(d, f)],
+        lambda d, f: ["eval", "sensors", "--json", bad_output(d, f)],
+    ),
     "bench flow": lambda d, f: ["bench", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
     "bench graph": one_of(  # every case must fail before a process starts
         lambda d, f: ["bench", "graph", f"--duration={d(not_positive())}"],
@@ -279,7 +292,7 @@ def test_every_command_has_bad_input_cases():
 
 
 SLOW = {name: 8 for name in ("eval flow", "bench flow", "seg estimate", "eval seg", "eval fusion", "bench seg",
-                              "bench fusion", "odom run", "eval odom", "bench odom")}
+                              "bench fusion", "odom run", "eval odom", "bench odom", "eval sensors")}
 # (commands that import torch and build estimators before they read input)
 
 

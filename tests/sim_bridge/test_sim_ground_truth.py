@@ -1,5 +1,5 @@
-"""Ground-truth scene flow is exact: rigid ego motion for static points, agent motion on agents, and
-scan t + flow lies on the surfaces of t+1."""
+"""Ground-truth scene flow is exact for every sensor model: rigid ego motion for static points, agent motion on
+agents, and scan t + flow lies on the surfaces of t+1."""
 
 from __future__ import annotations
 
@@ -9,13 +9,16 @@ import pytest
 from ssf_common.geometry.se3 import relative_pose as relative_motion
 from sim_bridge.lidar import surface_distance
 from sim_bridge.meshes import TriangleSoup
+from sim_bridge.sensors import sensor_names
 from sim_bridge.simulator import Simulator
 
 
-@pytest.fixture(scope="module")
-def consecutive(small_scenario):
-    """Two consecutive frames from mid-episode with moving agents and a moving ego (no range noise)."""
-    sim = Simulator(small_scenario(agents=60, **{"lidar.range_noise": 0.0, "agents.keep_clear_of_start": 8.0}), seed=3)
+@pytest.fixture(scope="module", params=sensor_names())
+def consecutive(request, small_scenario):
+    """Two consecutive frames from mid-episode with moving agents and a moving ego (no range noise), per sensor model."""
+    overrides = {"lidar.model": request.param, "lidar.columns": 256 if request.param == "os1_128" else 512,
+                 "lidar.range_noise": 0.0, "agents.keep_clear_of_start": 8.0}
+    sim = Simulator(small_scenario(agents=60, **overrides), seed=3)
     frame = sim.reset()
     driver = sim.follower()
     for _ in range(15):

@@ -37,7 +37,7 @@ PROTOCOLS = {
     "whole": PairProtocol(points=None, max_range=None, remove_ground=False),
 }
 
-DEFAULT_WARMUP_S = 2.0  # the traffic starts from rest: before this, few agents move
+DEFAULT_WARMUP_S = 2.0  # the traffic starts from rest: before this, few agents move (a scenario's episode.warmup_s)
 
 
 def pair_protocol(name: str = "paper", **overrides) -> PairProtocol:
@@ -48,8 +48,9 @@ def pair_protocol(name: str = "paper", **overrides) -> PairProtocol:
     return build(PairProtocol, {**PROTOCOLS[name].model_dump(), **changes})
 
 
-def warmup_frames(scenario: Scenario, warmup_s: float) -> int:
-    """Frames simulated before the first pair, so that the traffic is moving."""
+def warmup_frames(scenario: Scenario, warmup_s: float | None) -> int:
+    """Frames simulated before the first pair, so that the traffic is moving (None: the scenario's warm-up)."""
+    warmup_s = scenario.episode.warmup_s if warmup_s is None else warmup_s
     if not np.isfinite(warmup_s) or warmup_s < 0:
         raise ConfigError(f"warm-up must be a finite number of seconds >= 0, got {warmup_s}")
     return int(round(warmup_s / scenario.episode.dt))
@@ -121,9 +122,10 @@ def _scenario(scenario: Scenario | str) -> Scenario:
 
 def generate_pairs(
     scenario: Scenario | str, seed: int | None = None, frames: int = 10, protocol: PairProtocol = PROTOCOLS["paper"],
-    warmup_s: float = DEFAULT_WARMUP_S,
+    warmup_s: float | None = None,
 ) -> Iterator[ScanPair]:
-    """frames consecutive pairs of the scenario (seeded, deterministic) after warmup_s seconds, cut by the protocol."""
+    """frames consecutive pairs of the scenario (seeded, deterministic) after warmup_s seconds (None: the scenario's
+    episode.warmup_s), cut by the protocol."""
     scenario = _scenario(scenario)
     seed = scenario.seed if seed is None else seed
     skip = warmup_frames(scenario, warmup_s)
@@ -138,7 +140,7 @@ def export(
     frames: int = 10,
     protocol: PairProtocol = PROTOCOLS["paper"],
     progress=None,
-    warmup_s: float = DEFAULT_WARMUP_S,
+    warmup_s: float | None = None,
 ) -> Path:
     """Write pairs/NNNNNN.npz, sequence/velodyne/NNNNNN.bin + sequence/poses.txt and dataset.json under out."""
     scenario = _scenario(scenario)
@@ -163,11 +165,11 @@ def export(
         "scenario": scenario.model_dump(mode="json"),
         "seed": seed,
         "pairs": frames,
-        "warmup_s": warmup_s,
+        "warmup_s": scenario.episode.warmup_s if warmup_s is None else warmup_s,
         "first_frame": skip,
         "protocol": protocol.model_dump(mode="json"),
         "dt": scenario.episode.dt,
-        "sensor": scenario.lidar.model_dump(mode="json"),
+        "sensor": {**scenario.lidar.spec().summary(), "mount_height": scenario.lidar.mount_height},
         "pair_keys": {
             "pc1": "float32 (N,3) scan t in its sensor frame",
             "pc2": "float32 (N,3) scan t+1 in its sensor frame",

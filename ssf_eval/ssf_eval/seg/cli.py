@@ -120,14 +120,17 @@ def add_bench_options(parser: argparse.ArgumentParser) -> None:
     add_perception_options(parser)
 
 
-def perception_config(args: argparse.Namespace, **overrides: Any):
-    """The perception config from --config, -p and the command's own flags."""
+def perception_config(args: argparse.Namespace, scenario=None, **overrides: Any):
+    """The perception config from --config, -p and the command's own flags (over the sweep period of a simulated
+    scenario: the time between its scans)."""
     from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_eval.pipeline import PerceptionConfig
+    from ssf_eval.sources import sweep_period_layer
     from ssf_flow_node.core.estimator import WHOLE_SCAN
 
     whole = getattr(args, "protocol", None) == "whole" or not hasattr(args, "protocol")  # scans as the nodes see them
-    layers = [{"flow": WHOLE_SCAN}] if whole else []
+    layers = [sweep_period_layer(scenario)] if scenario is not None else []
+    layers += [{"flow": WHOLE_SCAN}] if whole else []
     layers += [read_yaml(args.config)] if args.config else []
     flags = {name: value for name, value in overrides.items() if value is not None}
     return build(PerceptionConfig, *layers, parse_overrides(args.param, "-p"), flags, source=str(args.config or "-p"))
@@ -207,12 +210,13 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     from ssf_eval.pipeline import SsfPerception
     from ssf_eval.results import write_result
     from ssf_eval.seg.evaluate import FlowInput, evaluate_segmentation, format_seg_table
+    from ssf_eval.sources import source_scenario
     from ssf_flow_node.core.estimator import make_estimator
 
     if args.json:
         check_writable(args.json, "result file")
     torch.set_num_threads(args.threads)
-    config = perception_config(args)
+    config = perception_config(args, source_scenario(args))
     methods = build_methods(args, config)
     perception = SsfPerception(config, args.device) if any(m.segmenter is None for m in methods) else None
     source, starts = sequences_from_args(args)
@@ -248,12 +252,13 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
     from ssf_eval.pipeline import SsfPerception
     from ssf_eval.results import write_result
     from ssf_eval.seg.evaluate import evaluate_iterations, format_iteration_table, plot_iterations
+    from ssf_eval.sources import source_scenario
 
     for path, what in ((args.json, "result file"), (args.plot, "picture")):
         if path is not None:
             check_writable(path, what)
     torch.set_num_threads(args.threads)
-    config = perception_config(args, **{"fusion.max_iterations": args.iterations})
+    config = perception_config(args, source_scenario(args), **{"fusion.max_iterations": args.iterations})
     perception = SsfPerception(config, args.device)
     source, starts = sequences_from_args(args)
     rows, taken = evaluate_iterations(perception, source.pairs, progress=lambda done: print(

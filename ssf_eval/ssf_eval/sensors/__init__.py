@@ -1,0 +1,1 @@
+"""Perception per LiDAR model and stress scenario: `ssf eval sensors`."""
