@@ -233,10 +233,6 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--json", bad_output(d, f)],
         lambda d, f: ["bench", "odom", "--scenario", "empty", "--odom-config", hostile_yaml_file(d, f)],
     ),
-    "bench graph": one_of(  # a bad --scenario is only noticed once the graph runs: not a case here yet
-        lambda d, f: ["bench", "graph", f"--duration={d(not_positive())}"],
-        lambda d, f: ["bench", "graph", "--json", bad_output(d, f)],
-    ),
     "eval sensors": one_of(
         lambda d, f: ["eval", "sensors", "--seeds", d(st.sampled_from(["a", "-1", "5-3", "1.5", "", "0-99999"]))],
         lambda d, f: ["eval", "sensors", "--scenarios", hostile_yaml_file(d, f)],
