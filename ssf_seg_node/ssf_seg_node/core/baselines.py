@@ -10,9 +10,9 @@ from ssf_common.config import Section
 from ssf_common.geometry.clustering import dbscan
 from ssf_common.geometry.neighbours import nearest
 from ssf_seg_node.core.base import SegInput, SegmentationResult, one_hot, result_from_slots
-from ssf_seg_node.core.features import feature_columns, motion_input, standardised
+from ssf_seg_node.core.features import feature_columns, motion_input, selection_for, standardised
 from ssf_seg_node.core.geometric import GeometricConfig
-from ssf_seg_node.core.selection import StaticSelectionConfig, static_slots_of
+from ssf_seg_node.core.selection import StaticRule, StaticSelectionConfig, static_slots_of
 
 
 class ClusteringInputConfig(Section):
@@ -20,7 +20,10 @@ class ClusteringInputConfig(Section):
 
     compensate_ego: bool = Field(True, description="cluster the flow relative to the static scene, not the raw flow")
     fit_points: int = Field(8192, ge=16, description="at most this many points are clustered; the others join the "
-                            "cluster of their nearest clustered point in feature space")
+                            "cluster of their nearest clustered point in feature space (gmm: the mixture's posterior)")
+    static_rule: StaticRule | None = Field(StaticRule.VELOCITY, description="the static selection rule for this "
+                                           "method (null: selection.rule); the clusters split the static scene, so the "
+                                           "largest one is only part of it")
     min_instance_points: int = Field(5, ge=1, description="smaller moving clusters get no instance id")
     seed: int = 0
 
@@ -30,13 +33,15 @@ class GmmConfig(ClusteringInputConfig):
 
     components: int = Field(10, ge=1, description="K, as many slots as the network has")
     covariance: str = Field("full", pattern="^(full|tied|diag|spherical)$")
-    max_iterations: int = Field(100, ge=1)
+    max_iterations: int = Field(50, ge=1)
+    fit_points: int = Field(4096, ge=16, description="at most this many points fit the mixture; every point gets "
+                            "its posterior")
 
 
 class DbscanConfig(ClusteringInputConfig):
     """DBSCAN over the standardised features (one slot per cluster, noise in a slot of its own)."""
 
-    eps: float = Field(0.25, gt=0.0, description="neighbourhood radius in standardised feature units")
+    eps: float = Field(0.35, gt=0.0, description="neighbourhood radius in standardised feature units")
     min_samples: int = Field(10, ge=1)
 
 
@@ -45,7 +50,8 @@ class ClusteringSegmenter:
 
     def __init__(self, method: str, kind: SegInput, config: GmmConfig | DbscanConfig, selection: StaticSelectionConfig,
                  ego_fit: GeometricConfig) -> None:
-        self.method, self.kind, self.config, self.selection, self.ego_fit = method, SegInput(kind), config, selection, ego_fit
+        self.method, self.kind, self.config, self.ego_fit = method, SegInput(kind), config, ego_fit
+        self.selection = selection_for(selection, config.static_rule, self.kind)
         self.name = f"{method}-{self.kind.value}"
 
     def segment(self, points: np.ndarray, flow: np.ndarray, previous: np.ndarray | None = None,

@@ -15,6 +15,7 @@ import numpy as np
 from ssf_common.geometry.se3 import rigid_flow
 from ssf_seg_node.core.base import SegInput
 from ssf_seg_node.core.geometric import GeometricConfig, fit_ego_motion
+from ssf_seg_node.core.selection import StaticRule, StaticSelectionConfig
 
 
 class MotionInput(NamedTuple):
@@ -44,3 +45,11 @@ def standardised(features: np.ndarray) -> np.ndarray:
     """Each column to zero mean and unit standard deviation (constant columns to zero)."""
     spread = features.std(axis=0)
     return (features - features.mean(axis=0)) / np.where(spread > 1e-9, spread, 1.0)
+
+
+def selection_for(selection: StaticSelectionConfig, rule: StaticRule | None, kind: SegInput) -> StaticSelectionConfig:
+    """The static selection a method applies: its own rule when it names one; quantity-based whenever it sees only
+    the points (it never looks at the flow, so it cannot compare speeds)."""
+    if SegInput(kind) is SegInput.POINTS:
+        rule = StaticRule.QUANTITY
+    return selection if rule is None else selection.model_copy(update={"rule": rule})

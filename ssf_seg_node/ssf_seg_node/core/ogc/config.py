@@ -5,6 +5,7 @@ from __future__ import annotations
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_seg_node.core.selection import StaticRule
 
 
 class NetworkRunConfig(Section):
@@ -15,5 +16,8 @@ class NetworkRunConfig(Section):
                                  "fitted to the flow) instead of the raw sensor-frame flow")
     points: int = Field(8192, ge=64, description="the network sees at most this many points; the others take the "
                         "masks of their nearest seen points")
+    static_rule: StaticRule | None = Field(StaticRule.VELOCITY, description="the static selection rule for this "
+                                           "network (null: selection.rule); ogc spreads the static scene over several "
+                                           "slots, so the largest slot is only part of it")
     min_instance_points: int = Field(5, ge=1, description="smaller moving segments get no instance id")
     instance_voxel: float = Field(0.6, gt=0.0, description="pointnet: voxel edge (m) joining moving points into instances")

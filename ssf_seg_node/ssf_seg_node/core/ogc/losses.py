@@ -70,14 +70,15 @@ def motion_loss(points: torch.Tensor, flow: torch.Tensor, masks: torch.Tensor,
 
 def consistency_loss(flow: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
     """L_SC, semantic scene flow consistency: per slot the mask-weighted variance of the flow around the slot's mean
-    flow, averaged over the slots that hold at least one point's weight."""
+    flow, averaged over the slots weighted by their share of the points (sum_k sum_i m_ik |f_i - mu_k|^2 / N).
+
+    Weighting by size keeps the largest slot from absorbing outliers for free (in a plain slot average a point's
+    squared deviation is divided by the size of the slot it sits in, so the static scene would swallow movers)."""
     total = masks.sum(dim=1)  # (B, K)
-    safe = total.clamp_min(MIN_WEIGHT)
-    mean = torch.einsum("bnk,bni->bki", masks, flow) / safe.unsqueeze(-1)
-    second = torch.einsum("bnk,bn->bk", masks, (flow * flow).sum(dim=-1)) / safe
-    variance = (second - (mean * mean).sum(dim=-1)).clamp_min(0.0)
-    occupied = (total >= 1.0).to(variance.dtype)
-    return (variance * occupied).sum() / occupied.sum().clamp_min(1.0)
+    mean = torch.einsum("bnk,bni->bki", masks, flow) / total.clamp_min(MIN_WEIGHT).unsqueeze(-1)
+    second = torch.einsum("bnk,bn->bk", masks, (flow * flow).sum(dim=-1))
+    within = (second - total * (mean * mean).sum(dim=-1)).clamp_min(0.0)  # sum_i m_ik |f_i - mu_k|^2
+    return within.sum(dim=1).mean() / masks.shape[1]
 
 
 def nearest_distance(moved: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -93,11 +94,22 @@ def chamfer_loss(moved: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return nearest_distance(moved, target) + nearest_distance(target, moved)
 
 
-def neighbourhood(points: torch.Tensor, k: int, radius: float) -> torch.Tensor:
-    """(B, N, k) indices of each point's k nearest points within radius (the point itself where there are fewer)."""
-    return ball_group(points, points, k, radius)
+def neighbourhood(points: torch.Tensor, k: int, radius: float, centres: torch.Tensor | None = None) -> torch.Tensor:
+    """(B, M, k) indices of the k nearest points within radius of each centre (default: every point), nearest first;
+    the nearest repeats where there are fewer."""
+    return ball_group(points if centres is None else centres, points, k, radius)
 
 
-def smoothness_loss(masks: torch.Tensor, neighbours: torch.Tensor) -> torch.Tensor:
-    """OGC's smoothness: mean L1 difference between a point's mask and its neighbours' masks."""
-    return (gather(masks, neighbours) - masks.unsqueeze(2)).abs().sum(dim=-1).mean()
+def narrower(points: torch.Tensor, neighbours: torch.Tensor, k: int, radius: float,
+             centres: torch.Tensor | None = None) -> torch.Tensor:
+    """The k-nearest-within-radius neighbourhood taken from a wider one (nearest first), without another search."""
+    index = neighbours[..., :k]
+    distance = (gather(points, index) - (points if centres is None else centres).unsqueeze(2)).norm(dim=-1)
+    return torch.where(distance > radius, index[..., :1], index)
+
+
+def smoothness_loss(masks: torch.Tensor, neighbours: torch.Tensor, anchors: torch.Tensor | None = None) -> torch.Tensor:
+    """OGC's smoothness: mean L1 difference between a point's mask and its neighbours' masks (over the anchor points
+    (B, M) whose neighbourhoods these are, default every point)."""
+    centre = masks if anchors is None else gather(masks, anchors)
+    return (gather(masks, neighbours) - centre.unsqueeze(2)).abs().sum(dim=-1).mean()

@@ -185,9 +185,13 @@ class OgcNet(nn.Module):
         self.memory = nn.Linear(config.widths[1], width)
         self.queries = nn.Parameter(torch.randn(config.slots, width))
         self.decoder = nn.ModuleList(DecoderLayer(width, config.heads) for _ in range(config.decoder_layers))
-        self.slot_head = nn.Sequential(nn.Linear(width, width), nn.ReLU(), nn.Linear(width, config.embedding))
+        self.slot_head = nn.Sequential(nn.Linear(width, width), nn.ReLU(), nn.Linear(width, config.embedding),
+                                       nn.LayerNorm(config.embedding))
+        # the last GroupNorm has one group per channel: each channel centred over the scan's points, so that the
+        # embeddings spread over directions instead of sharing the common one ReLU features have
         self.point_head = nn.Sequential(nn.Linear(config.embedding, config.embedding), nn.ReLU(),
-                                        nn.Linear(config.embedding, config.embedding))
+                                        nn.Linear(config.embedding, config.embedding),
+                                        GroupNorm(config.embedding, config.embedding))
 
     def forward(self, points: torch.Tensor, flow: torch.Tensor) -> torch.Tensor:
         """Soft masks (B, N, K), rows summing to 1."""

@@ -11,8 +11,8 @@ import torch
 from ssf_common.errors import DataError
 from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.neighbours import propagate
-from ssf_seg_node.core.base import SegInput, SegmentationResult, one_hot, result_from_slots
-from ssf_seg_node.core.features import MotionInput, motion_input
+from ssf_seg_node.core.base import SegInput, SegmentationResult, result_from_slots
+from ssf_seg_node.core.features import MotionInput, motion_input, selection_for
 from ssf_seg_node.core.geometric import GeometricConfig
 from ssf_seg_node.core.ogc.checkpoint import NetworkKind, load, shipped_weights
 from ssf_seg_node.core.ogc.config import NetworkRunConfig
@@ -58,7 +58,7 @@ class OgcSegmenter:
 
     def __init__(self, runner: NetworkRunner, selection: StaticSelectionConfig) -> None:
         self.runner = runner
-        self.selection = selection
+        self.selection = selection_for(selection, runner.run.static_rule, runner.network.config.input)
         self.name = f"ogc-{runner.network.config.input.value}"
 
     def segment(self, points: np.ndarray, flow: np.ndarray, previous: np.ndarray | None = None,
@@ -92,12 +92,13 @@ class PointNetSegmenter:
         # 2. moving points in touching voxels form one instance
         moving = np.flatnonzero(probability > 0.5)
         labels, count = voxel_components(points[moving], self.runner.run.instance_voxel)
-        # 3. slots: the static scene, then one per instance carrying its points' probability
-        slots = np.zeros((len(points), 1 + count), np.float32)
+        # 3. slots: the static scene (1 - p), the moving mass of points in no instance, then one slot per instance
+        slots = np.zeros((len(points), 2 + count), np.float32)
         slots[:, 0] = 1.0 - probability
-        slots[moving] = one_hot(labels + 1, 1 + count) * probability[moving, None]
-        slots[moving, 0] = 1.0 - probability[moving]
-        static = np.zeros(1 + count, bool)
+        slots[:, 1] = probability
+        slots[moving, 1] = 0.0
+        slots[moving, 2 + labels] = probability[moving]
+        static = np.zeros(2 + count, bool)
         static[0] = True
         return result_from_slots(slots, static, self.runner.run.min_instance_points)
 

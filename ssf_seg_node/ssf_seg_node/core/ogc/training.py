@@ -20,12 +20,13 @@ from ssf_common.dataset.pairs import ScanPair, read_pair
 from ssf_common.errors import DataError
 from ssf_common.geometry.sampling import sample_indices
 from ssf_common.geometry.se3 import rigid_flow, transform_points, yaw_matrix
+from ssf_common.geometry.torch_ops import gather
 from ssf_seg_node.core.geometric import GeometricConfig, fit_ego_motion
 from ssf_seg_node.core.ogc import checkpoint
 from ssf_seg_node.core.ogc.checkpoint import NetworkKind
 from ssf_seg_node.core.ogc.config import NetworkRunConfig
-from ssf_seg_node.core.ogc.losses import (chamfer_loss, consistency_loss, motion_loss, neighbourhood, rigid_mixture,
-                                          slot_motions, smoothness_loss)
+from ssf_seg_node.core.ogc.losses import (chamfer_loss, consistency_loss, motion_loss, narrower, neighbourhood,
+                                          rigid_mixture, slot_motions, smoothness_loss)
 from ssf_seg_node.core.ogc.network import OgcConfig
 from ssf_seg_node.core.ogc.segmenter import NetworkRunner, OgcSegmenter, PointNetSegmenter
 from ssf_seg_node.core.selection import StaticSelectionConfig
@@ -37,7 +38,7 @@ class LossWeights(Section):
     """Weights of the self-supervised terms (OGC: dynamic 10, smoothness 0.1 over kNN x3 + ball x1)."""
 
     motion: float = Field(10.0, ge=0.0, description="L_mot, rigid motion consistency")
-    consistency: float = Field(1.0, ge=0.0, description="L_SC, per-slot flow variance")
+    consistency: float = Field(10.0, ge=0.0, description="L_SC, per-slot variance of the flow the network sees")
     chamfer: float = Field(1.0, ge=0.0, description="L_CD of the slots' rigid mixture against scan t+1")
     smooth: float = Field(0.1, ge=0.0, description="mask smoothness (kNN and ball neighbourhoods)")
     knn_neighbours: int = Field(32, ge=1)
@@ -46,6 +47,8 @@ class LossWeights(Section):
     ball_neighbours: int = Field(64, ge=1)
     ball_radius: float = Field(2.0, gt=0.0)
     ball_weight: float = Field(1.0, ge=0.0)
+    smooth_anchors: int = Field(2048, ge=1, description="points whose neighbourhoods the smoothness is averaged over "
+                                "(a random subset per step: the same expectation, a fraction of the cost)")
 
 
 class AugmentConfig(Section):
@@ -67,7 +70,7 @@ class SegTrainConfig(Section):
     augment: AugmentConfig = AugmentConfig()
     dynamic_weight: float = Field(4.0, ge=1.0, description="pointnet: weight of moving points in the cross-entropy")
     steps: int = Field(3000, ge=1)
-    batch_size: int = Field(2, ge=1)
+    batch_size: int = Field(1, ge=1)
     points: int = Field(8192, ge=64, description="points per scan and sample")
     learning_rate: float = Field(1e-3, gt=0.0)
     weight_decay: float = Field(1e-4, ge=0.0, description="decoupled (AdamW)")
@@ -171,7 +174,9 @@ class SegTrainer:
         if not files:
             raise DataError("no training pairs given")
         self.config, self.files, self.out, self.device, self.log = config, files, out, device, log
-        self.validation_files = list(validation or [])[: config.validation_pairs]
+        validation = list(validation or [])
+        spacing = max(1, len(validation) // max(1, config.validation_pairs))
+        self.validation_files = validation[::spacing][: config.validation_pairs]  # spread over the folder
         torch.manual_seed(config.seed)
         self.network = config.method.build(config.network).to(device)
         self.optimizer = torch.optim.AdamW(self.network.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
@@ -227,7 +232,7 @@ class SegTrainer:
         runner = NetworkRunner(self.network, run, self.ego_fit, self.device)
         if self.config.method is NetworkKind.POINTNET:
             return PointNetSegmenter(runner)
-        return OgcSegmenter(runner, StaticSelectionConfig())
+        return OgcSegmenter(runner, StaticSelectionConfig())  # the selection inference uses by default
 
     def validate(self) -> Scores | None:
         """Mean accuracy and moving IoU of the current network on the validation pairs (labels only scored)."""
@@ -240,7 +245,7 @@ class SegTrainer:
             result = segmenter.segment(item.pair.pc1, item.flow)
             scores.append(motion_scores(result.segmentation.dynamic, item.pair.dynamic1))
         self.network.train()
-        return Scores(*np.mean(np.array(scores), axis=0))
+        return Scores(*(float(value) for value in np.mean(np.array(scores), axis=0)))
 
     def save(self) -> None:
         """Write the resumable checkpoint (network config, training config, optimizer state, validation history)."""
@@ -283,7 +288,7 @@ class SegTrainer:
         """Validate, keep the scores in the history and log them."""
         scores = self.validate()
         if scores is not None:
-            self.history.append((self.step, scores.accuracy, scores.moving_iou))
+            self.history.append((self.step, float(scores.accuracy), float(scores.moving_iou)))
             self.log(f"step {self.step} validation: accuracy {100 * scores.accuracy:.2f} %, moving IoU "
                      f"{scores.moving_iou:.3f} ({len(self.validation_files)} pairs)")
 
@@ -296,8 +301,19 @@ def self_supervised_loss(masks: torch.Tensor, batch: Batch, weights: LossWeights
     if weights.chamfer:
         loss = loss + weights.chamfer * chamfer_loss(rigid_mixture(batch.points, masks, motions), batch.points2)
     if weights.smooth:
-        knn = neighbourhood(batch.points, weights.knn_neighbours, weights.knn_radius)
-        ball = neighbourhood(batch.points, weights.ball_neighbours, weights.ball_radius)
-        loss = loss + weights.smooth * (weights.knn_weight * smoothness_loss(masks, knn)
-                                        + weights.ball_weight * smoothness_loss(masks, ball))
+        loss = loss + weights.smooth * smoothness_terms(batch.points, masks, weights)
     return loss
+
+
+def smoothness_terms(points: torch.Tensor, masks: torch.Tensor, weights: LossWeights) -> torch.Tensor:
+    """kNN and ball-query smoothness, weighted, over random anchor points (one neighbour search for both)."""
+    count = min(weights.smooth_anchors, points.shape[1])
+    anchors = torch.stack([torch.randperm(points.shape[1], device=points.device)[:count] for _ in range(points.shape[0])])
+    centres = gather(points, anchors)
+    ball = neighbourhood(points, weights.ball_neighbours, weights.ball_radius, centres)
+    if weights.knn_neighbours <= weights.ball_neighbours and weights.knn_radius <= weights.ball_radius:
+        knn = narrower(points, ball, weights.knn_neighbours, weights.knn_radius, centres)
+    else:
+        knn = neighbourhood(points, weights.knn_neighbours, weights.knn_radius, centres)
+    return (weights.knn_weight * smoothness_loss(masks, knn, anchors)
+            + weights.ball_weight * smoothness_loss(masks, ball, anchors))
