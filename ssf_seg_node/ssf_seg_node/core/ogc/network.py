@@ -33,6 +33,9 @@ class OgcConfig(Section):
     decoder_layers: int = Field(2, ge=1)
     heads: int = Field(4, ge=1)
     temperature: float = Field(0.05, gt=0.0, description="tau of the cosine softmax over slots")
+    query_identity: bool = Field(True, description="add each slot's learned query to its attention inputs in every "
+                                 "decoder layer (MaskFormer's query position): without it the decoder can merge the "
+                                 "slots into one, and the masks become uniform for good")
     groups: int = Field(4, ge=1, description="GroupNorm groups")
     coordinate_scale: float = Field(0.05, gt=0.0, description="xyz multiplied by this in the input features")
     flow_scale: float = Field(5.0, gt=0.0, description="flow (m per frame) multiplied by this in the input features")
@@ -166,10 +169,11 @@ class DecoderLayer(nn.Module):
         self.feed = nn.Sequential(nn.Linear(width, 2 * width), nn.ReLU(), nn.Linear(2 * width, width))
         self.norms = nn.ModuleList(nn.LayerNorm(width) for _ in range(3))
 
-    def forward(self, queries: torch.Tensor, memory: torch.Tensor) -> torch.Tensor:
-        """Updated queries (B, K, width)."""
-        queries = self.norms[0](queries + self.cross(queries, memory, memory, need_weights=False)[0])
-        queries = self.norms[1](queries + self.itself(queries, queries, queries, need_weights=False)[0])
+    def forward(self, queries: torch.Tensor, memory: torch.Tensor, identity: torch.Tensor | float = 0.0) -> torch.Tensor:
+        """Updated queries (B, K, width); `identity` (B, K, width) is added where the queries ask."""
+        queries = self.norms[0](queries + self.cross(queries + identity, memory, memory, need_weights=False)[0])
+        asking = queries + identity
+        queries = self.norms[1](queries + self.itself(asking, asking, queries, need_weights=False)[0])
         return self.norms[2](queries + self.feed(queries))
 
 
@@ -198,8 +202,9 @@ class OgcNet(nn.Module):
         encoding = self.encoder(points, flow)
         memory = self.memory(encoding.summary)
         slots = self.queries.unsqueeze(0).expand(points.shape[0], -1, -1)
+        identity = slots if self.config.query_identity else 0.0
         for layer in self.decoder:
-            slots = layer(slots, memory)
+            slots = layer(slots, memory, identity)
         point_embedding = F.normalize(self.point_head(encoding.points), dim=-1)
         slot_embedding = F.normalize(self.slot_head(slots), dim=-1)
         return torch.softmax(point_embedding @ slot_embedding.transpose(1, 2) / self.config.temperature, dim=-1)

@@ -74,6 +74,8 @@ class SegTrainConfig(Section):
     points: int = Field(8192, ge=64, description="points per scan and sample")
     learning_rate: float = Field(1e-3, gt=0.0)
     weight_decay: float = Field(1e-4, ge=0.0, description="decoupled (AdamW)")
+    clip_norm: float = Field(1.0, ge=0.0, description="largest gradient norm per step (0 = no clipping): one bad "
+                             "batch must not throw the slots into the uniform state they cannot leave")
     decay: float = Field(0.7, gt=0.0, le=1.0, description="learning-rate factor applied every decay_steps")
     decay_steps: int = Field(1000, ge=1)
     seed: int = 0
@@ -263,6 +265,8 @@ class SegTrainer:
             loss = self.loss(self.batch())
             self.optimizer.zero_grad()
             loss.backward()
+            if self.config.clip_norm:
+                torch.nn.utils.clip_grad_norm_(self.network.parameters(), self.config.clip_norm)
             self.optimizer.step()
             self.scheduler.step()
             self.step += 1
