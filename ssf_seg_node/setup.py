@@ -10,6 +10,7 @@ setup(
     name=PACKAGE,
     version="0.1.0",
     packages=find_packages(exclude=["test"]),
+    package_data={PACKAGE: ["weights/*.pt", "weights/*.md"]},
     include_package_data=True,
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + PACKAGE]),
@@ -26,6 +27,9 @@ setup(
         "console_scripts": [
             "ssf_seg_node = ssf_seg_node.node:main",
             "ssf_fusion_node = ssf_seg_node.fusion_node:main",
+        ],
+        "ssf.commands": [
+            "seg-train = ssf_seg_node.train_cli:register",
         ],
     },
 )

@@ -1,4 +1,5 @@
-"""`ssf eval` and `ssf bench` commands of every stage that needs the simulator or several cores together."""
+"""`ssf eval` and `ssf bench` commands of every stage that needs the simulator or several cores together (and the
+flow cached for training the segmentation networks)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,7 @@ from ssf_common.cli import CommandGroups
 
 def register(groups: CommandGroups) -> None:
     """Add the evaluation and benchmark commands."""
+    from ssf_eval import training_flow
     from ssf_eval.flow import cli as flow
     from ssf_eval.nav import cli as nav
     from ssf_eval.odom import cli as odom
@@ -20,3 +22,4 @@ def register(groups: CommandGroups) -> None:
     plan.register(groups)
     odom.register(groups)
     sensors.register(groups)
+    training_flow.register(groups)

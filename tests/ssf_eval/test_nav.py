@@ -11,7 +11,7 @@ from dataclasses import replace
 import pytest
 
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
-from ssf_eval.nav.loop import PERCEPTION_NAMES, TrialOutcome, TrialRecord, TrialSpec, run_trial
+from ssf_eval.nav.loop import PERCEPTION_NAMES, TrialOutcome, TrialRecord, TrialSpec
 from ssf_eval.nav.stats import barn_score, summarise, wilson_interval
 
 LIGHT = {"lidar.columns": 256, "lidar.beams": 32}  # a lighter LiDAR keeps the trials quick

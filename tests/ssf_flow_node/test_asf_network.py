@@ -1,10 +1,9 @@
-"""The network's building blocks: neighbour search without N x N matrices, FPS, shapes, mask strategies."""
+"""The ASF-style network: shapes, flow limits, mask strategies (its point operations: tests/ssf_common/test_torch_ops.py)."""
 
 import pytest
 import torch
 
 from ssf_flow_node.core.asf.network import FLOW_LIMIT, AsfConfig, AsfNet, MaskStrategy
-from ssf_flow_node.core.asf.ops import farthest_points, farthest_torch, gather, interpolate, knn_chunked, knn_kdtree
 
 SMALL = dict(points=(256, 64, 32, 16), neighbours=(8, 8, 8, 4), encoder_width=8, level_widths=(8, 16, 16, 16),
              cost_width=(8, 8, 8, 8), cost_neighbours=8, patch_neighbours=4, upconv_neighbours=4, flow_width=16)
@@ -20,33 +19,6 @@ def trained_looking(net: AsfNet) -> AsfNet:
 def clouds(count=1024, batch=2, seed=0):
     generator = torch.Generator().manual_seed(seed)
     return torch.rand(batch, count, 3, generator=generator) * 20.0
-
-
-def test_kdtree_and_chunked_knn_agree():
-    reference, query = clouds(3000), clouds(1500, seed=1)
-    tree = knn_kdtree(query, reference, 6)
-    chunked = knn_chunked(query, reference, 6)
-    distance = lambda index: (gather(reference, index) - query.unsqueeze(2)).norm(dim=-1)
-    assert torch.allclose(distance(tree).sort(-1).values, distance(chunked).sort(-1).values, atol=1e-4)
-
-
-def test_farthest_points_are_distinct_and_spread():
-    points = clouds(2048)
-    index = farthest_points(points, 128)
-    assert index.shape == (2, 128)
-    assert all(len(set(row.tolist())) == 128 for row in index)
-    picked = gather(points, index)
-    random_pick = points[:, :128]
-    spacing = lambda p: torch.cdist(p, p).add(torch.eye(128) * 1e9).min(-1).values.mean()
-    assert spacing(picked) > 1.5 * spacing(random_pick)
-    torch_index = farthest_torch(points, 128)
-    assert spacing(gather(points, torch_index)) > 1.5 * spacing(random_pick)
-
-
-def test_interpolation_reproduces_values_at_source_points():
-    source = clouds(200)
-    values = source * 2.0
-    assert torch.allclose(interpolate(source, values, source, k=3), values, atol=1e-3)
 
 
 @pytest.mark.parametrize("strategy", list(MaskStrategy))

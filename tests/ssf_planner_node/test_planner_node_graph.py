@@ -8,7 +8,6 @@ import time
 import numpy as np
 import pytest
 
-from ssf_common import messages
 from ssf_common.conversions import obstacles_to_msg, odometry_to_msg, plan_to_msg
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node
 from ssf_common.records import Obstacles, OdometryEstimate, Plan

@@ -1,5 +1,5 @@
 """Geometry shared by every stage, written once: pure numpy/scipy (plus Open3D's and scikit-learn's C++ where
-they are faster), no ROS.
+they are faster; torch only in `torch_ops`), no ROS.
 
 | module | what |
 | --- | --- |
@@ -11,4 +11,5 @@ they are faster), no ROS.
 | `clustering` | voxel connected components; DBSCAN / HDBSCAN from scikit-learn |
 | `ground` | height above the local ground on a grid, ground mask |
 | `boxes` | minimum-area oriented rectangles of point sets |
+| `torch_ops` | the same for torch tensors inside networks: FPS, kNN and ball grouping (KD-tree on CPU, chunked elsewhere), gather, interpolation |
 """

@@ -16,10 +16,10 @@ from ssf_common.dataset.masks import noisy_mask
 from ssf_common.dataset.pairs import ScanPair, read_pair
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import transform_points, yaw_matrix
+from ssf_common.geometry.torch_ops import gather, knn
 from ssf_flow_node.core.asf import checkpoint
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import AsfConfig, AsfNet, FlowPyramid
-from ssf_flow_node.core.asf.ops import gather, knn
 from ssf_flow_node.core.registration import RegistrationConfig, register
 
 

@@ -10,12 +10,18 @@ from pydantic import Field
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
 from ssf_seg_node.core.base import SegInput, Segmenter
+from ssf_seg_node.core.baselines import DbscanConfig, GmmConfig
 from ssf_seg_node.core.geometric import GeometricConfig
+from ssf_seg_node.core.ogc.config import NetworkRunConfig
 from ssf_seg_node.core.selection import StaticSelectionConfig
 
 # name -> "module:function" building it as function(config: SegConfig, device: str) -> Segmenter (imported lazily)
 SEGMENTER_BUILDERS: dict[str, str] = {
     "geometric": "ssf_seg_node.core.geometric:build",
+    "ogc": "ssf_seg_node.core.ogc.segmenter:build_ogc",
+    "pointnet": "ssf_seg_node.core.ogc.segmenter:build_pointnet",
+    "gmm": "ssf_seg_node.core.baselines:build_gmm",
+    "dbscan": "ssf_seg_node.core.baselines:build_dbscan",
 }
 
 
@@ -26,6 +32,10 @@ class SegConfig(Section):
     input: SegInput = Field(SegInput.BOTH, description="what the segmenter looks at: points | flow | both")
     selection: StaticSelectionConfig = StaticSelectionConfig()
     geometric: GeometricConfig = GeometricConfig()
+    ogc: NetworkRunConfig = NetworkRunConfig()
+    pointnet: NetworkRunConfig = NetworkRunConfig()
+    gmm: GmmConfig = GmmConfig()
+    dbscan: DbscanConfig = DbscanConfig()
 
 
 def make_segmenter(name: str | None = None, config: SegConfig | None = None, device: str = "cpu") -> Segmenter:

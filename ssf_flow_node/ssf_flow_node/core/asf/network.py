@@ -11,7 +11,7 @@ from pydantic import Field
 from torch import nn
 
 from ssf_common.config import Section
-from ssf_flow_node.core.asf.ops import farthest_points, gather, interpolate, knn
+from ssf_common.geometry.torch_ops import farthest_points, gather, interpolate, knn
 
 FLOW_LIMIT = 50.0
 IMPLICIT_SENTINEL = -1.0

@@ -1,4 +1,5 @@
-"""Point operations for the network: FPS, kNN without N x N matrices, gathering, inverse-distance interpolation."""
+"""Point operations for networks (torch tensors, batched): FPS, kNN and ball grouping without N x N matrices,
+gathering, inverse-distance interpolation. KD-trees on the CPU, chunked distance blocks on other devices."""
 
 from __future__ import annotations
 
@@ -33,6 +34,14 @@ def knn_chunked(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.T
         block = torch.cdist(query[:, start:start + CHUNK], reference)
         parts.append(block.topk(k, dim=2, largest=False).indices)
     return torch.cat(parts, dim=1)
+
+
+def ball_group(query: torch.Tensor, reference: torch.Tensor, k: int, radius: float) -> torch.Tensor:
+    """Indices (B, M, k) of the k nearest reference points within `radius` of each query point; places without
+    a neighbour that close repeat the nearest one (PointNet++'s ball query, nearest first)."""
+    index = knn(query, reference, k)
+    distance = (gather(reference, index) - query.unsqueeze(2)).norm(dim=-1)
+    return torch.where(distance > radius, index[..., :1], index)
 
 
 def farthest_points(points: torch.Tensor, count: int) -> torch.Tensor:

@@ -1,0 +1,1 @@
+"""The OGC-style segmentation network, its self-supervised losses, training and checkpoints (torch, no ROS)."""

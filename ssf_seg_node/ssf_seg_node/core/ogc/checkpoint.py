@@ -1,0 +1,74 @@
+"""Segmentation network checkpoints that carry their config: save (atomically), load (safely), shipped weights."""
+
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import torch
+
+from ssf_common.errors import DataError
+from ssf_seg_node.core.base import SegInput
+from ssf_seg_node.core.ogc.network import OgcConfig, OgcNet, PointNetClassifier
+
+FORMAT = "ssf-seg-net-1"
+WEIGHTS_DIR = Path(__file__).resolve().parents[2] / "weights"
+
+
+class NetworkKind(str, Enum):
+    """Which network a checkpoint holds."""
+
+    OGC = "ogc"  # K-slot masks, self-supervised
+    POINTNET = "pointnet"  # per-point static/dynamic classifier, supervised
+
+    def build(self, config: OgcConfig) -> OgcNet | PointNetClassifier:
+        """A fresh network of this kind."""
+        return OgcNet(config) if self is NetworkKind.OGC else PointNetClassifier(config)
+
+
+class Checkpoint(NamedTuple):
+    """A network with its config, and what training needs to resume."""
+
+    kind: NetworkKind
+    network: OgcNet | PointNetClassifier
+    config: OgcConfig
+    training: dict[str, Any]  # the training config as plain values
+    state: dict[str, Any]  # optimizer, scheduler, step, validation history (empty for shipped weights)
+
+
+def shipped_weights(kind: NetworkKind, kind_input: SegInput) -> Path:
+    """Path of the weights shipped for a network kind and input, e.g. weights/ogc_both.pt."""
+    return WEIGHTS_DIR / f"{kind.value}_{SegInput(kind_input).value}.pt"
+
+
+def save(path: Path, kind: NetworkKind, network: torch.nn.Module, training: dict[str, Any],
+         state: dict[str, Any] | None = None) -> None:
+    """Write a checkpoint atomically (temporary file, then rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    payload = {"format": FORMAT, "kind": kind.value, "network": network.config.model_dump(mode="json"),
+               "training": training, "weights": network.state_dict(), "state": state or {}}
+    temporary = path.with_suffix(path.suffix + ".tmp")
+    torch.save(payload, temporary)
+    temporary.replace(path)
+
+
+def load(path: Path, device: str = "cpu") -> Checkpoint:
+    """Read a checkpoint; a missing, foreign or incompatible file is one DataError line."""
+    if not path.is_file():
+        raise DataError(f"{path}: no such weights file (train one with `ssf train seg` or pass the weights option)")
+    try:
+        payload = torch.load(path, map_location=device, weights_only=True)
+    except Exception as err:  # torch raises many types for corrupt or non-torch files
+        raise DataError(f"{path}: not a readable weights file ({type(err).__name__}: {str(err).splitlines()[0][:120]})") from None
+    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
+        raise DataError(f"{path}: not an ssf segmentation network checkpoint (expected format '{FORMAT}')")
+    try:
+        kind = NetworkKind(payload["kind"])
+        config = OgcConfig.model_validate(payload["network"])
+        network = kind.build(config)
+        network.load_state_dict(payload["weights"])
+    except Exception as err:
+        raise DataError(f"{path}: weights do not fit the network they describe ({str(err).splitlines()[0][:160]})") from None
+    network.to(device).eval()
+    return Checkpoint(kind, network, config, dict(payload.get("training") or {}), dict(payload.get("state") or {}))
