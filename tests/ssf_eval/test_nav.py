@@ -11,7 +11,7 @@ from dataclasses import replace
 import pytest
 
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
-from ssf_eval.nav.loop import PERCEPTION_NAMES, TrialOutcome, TrialRecord, TrialSpec
+from ssf_eval.nav.loop import PERCEPTION_NAMES, ClosedLoop, TrialOutcome, TrialRecord, TrialSpec
 from ssf_eval.nav.stats import barn_score, summarise, wilson_interval
 
 LIGHT = {"lidar.columns": 256, "lidar.beams": 32}  # a lighter LiDAR keeps the trials quick
@@ -57,6 +57,17 @@ def test_a_two_trial_campaign_per_perception_source(perception, tmp_path):
             assert record.perception_ms_median > 0
     (cell,) = summarise(records)
     assert (cell.perception, cell.agents, cell.trials) == (perception, 50, 2)
+
+
+def test_the_pose_from_ssf_odometry_drives_the_route():
+    spec = TrialSpec("gt", 50, 100, 20.0, 20.0, "ssf")
+    loop = ClosedLoop(spec)
+    while loop.outcome is None:
+        tick = loop.tick()
+    record = loop.record(0.0)
+    assert record.outcome == "success" and record.pose == "ssf", record
+    assert len(loop.pose_errors) == record.ticks and 0.0 < record.pose_error_max_m < 0.3  # estimated, and close
+    assert tick.pose.shape == (4, 4) and record.perception_ms_median > 0  # the odometry runs the SSF pipeline
 
 
 def fake_trial(spec: TrialSpec) -> TrialRecord:
@@ -142,7 +153,7 @@ def test_the_table_and_the_figure(tmp_path):
 @pytest.mark.parametrize("flags, message", [
     (["--perception", "lidar-magic"], "unknown source 'lidar-magic'"),
     (["--agents", "many"], "--agents expects comma-separated integers"),
-    (["--pose", "ssf"], "--pose ssf needs the SSF odometry core"),
+    (["--pose", "imu"], "--pose: invalid choice"),
     (["--route-length", "5"], "--route-length must be at least 20 m"),
     (["-p", "horizon:=1"], "horizon"),
     (["--table-only"], "--table-only needs --resume FILE"),

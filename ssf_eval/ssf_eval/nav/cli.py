@@ -67,8 +67,6 @@ def run_eval(args: argparse.Namespace) -> int:
     if unknown or not perceptions:
         raise ConfigError(f"--perception: unknown source '{(unknown or [''])[0]}'; choose from {', '.join(PERCEPTION_NAMES)}")
     agents = _counts(args.agents)
-    if args.pose == "ssf":
-        raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), not on this branch yet; use --pose gt")
     if args.route_length is not None and not (math.isfinite(args.route_length) and args.route_length >= 20):
         raise ConfigError(f"--route-length must be at least 20 m, got {args.route_length:g}")
     if args.time_limit is not None and not (math.isfinite(args.time_limit) and args.time_limit > 0):

@@ -19,6 +19,7 @@ from ssf_common.errors import ConfigError
 from ssf_common.records import Obstacles
 from ssf_common.geometry.se3 import invert
 from ssf_eval.nav.perception import ODOM_FRAME, Observation, make_perception
+from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import vehicle_state
 from ssf_planner_node.core.planner import RdaPlanner, VehicleState
@@ -28,6 +29,7 @@ from ssf_planner_node.core.route import Route
 DENSITY_SCENARIOS = {50: "sparse_50", 100: "urban_100", 200: "urban_200", 500: "dense_500", 800: "dense_800",
                      1000: "crowd_1000"}
 PERCEPTION_NAMES = ("gt", "dbscan", "dbscan0", "ssf", "follower")
+POSE_SOURCES = ("gt", "ssf")  # the ego pose from the simulator's ground truth or from SSF odometry
 STUCK_WINDOW_S = 45.0  # no progress of STUCK_PROGRESS_M along the route in this long: stuck
 STUCK_PROGRESS_M = 2.0
 
@@ -89,6 +91,9 @@ class TrialRecord:
     perception_ms_median: float
     step_ms_median: float
     wall_s: float
+    pose: str = "gt"
+    pose_error_median_m: float = 0.0  # with --pose ssf: |estimated - true| ego position over the trial
+    pose_error_max_m: float = 0.0
 
     @property
     def success(self) -> bool:
@@ -102,7 +107,7 @@ class TrialRecord:
     @classmethod
     def from_json(cls, data: dict[str, Any]) -> TrialRecord:
         """Back from a JSONL line."""
-        return cls(**{name: data[name] for name in cls.__dataclass_fields__})
+        return cls(**{name: data[name] for name in cls.__dataclass_fields__ if name in data})
 
 
 def scenario_for(agents: int, settings: dict[str, Any] | None = None) -> tuple[Scenario, float]:
@@ -131,9 +136,8 @@ class ClosedLoop:
     def __init__(self, spec: TrialSpec) -> None:
         if spec.perception not in PERCEPTION_NAMES:
             raise ConfigError(f"unknown perception '{spec.perception}'; choose from {', '.join(PERCEPTION_NAMES)}")
-        if spec.pose != "gt":
-            raise ConfigError("--pose ssf needs the SSF odometry core (ssf_odom_node.core), which is not on this branch; "
-                              "use --pose gt")
+        if spec.pose not in POSE_SOURCES:
+            raise ConfigError(f"unknown pose source '{spec.pose}'; choose from {', '.join(POSE_SOURCES)}")
         self.spec = spec
         self.scenario, scenario_limit = scenario_for(spec.agents, spec.scenario)
         self.sim = Simulator(self.scenario, spec.seed)
@@ -144,7 +148,11 @@ class ClosedLoop:
         drive = self.route if spec.route_length is None else self._route(None)
         self.time_limit = spec.time_limit or max(60.0, scenario_limit * self.route.length / self.sim.world.route_length)
         self.follower = self.sim.follower() if spec.perception == "follower" else None
-        self.perception = None if self.follower else make_perception(spec.perception)
+        scans = ConsecutiveScans() if "ssf" in (spec.perception, spec.pose) and not self.follower else None
+        self.perception = None if self.follower else make_perception(spec.perception, scans=scans)
+        mount = invert(self.frame.base_pose) @ self.frame.pose  # base_link <- lidar
+        self.ssf_pose = SsfPose(mount, scans) if spec.pose == "ssf" and scans is not None else None
+        self.pose_errors: list[float] = []  # |estimated - true| ego position (m), with --pose ssf
         # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
         settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
         self.planner = None if self.follower else RdaPlanner(settings, drive)
@@ -162,14 +170,14 @@ class ClosedLoop:
     def tick(self) -> Tick:
         """Perceive, plan, step the simulator, judge the trial."""
         frame = self.frame
-        pose = self.world_to_odom @ frame.base_pose
-        state = vehicle_state(frame.stamp_ns, pose, frame.ego.speed)
+        started = time.perf_counter()
+        pose, lidar_pose, world_to_odom, speed = self._where(frame)
+        state = vehicle_state(frame.stamp_ns, pose, speed)
         obstacles, status = None, "follower"
         if self.follower is not None:
             command = self.follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
         else:
-            started = time.perf_counter()
-            obstacles = self.perception.observe(Observation(frame, self.world_to_odom @ frame.pose, self.world_to_odom))
+            obstacles = self.perception.observe(Observation(frame, lidar_pose, world_to_odom))
             self.perceive_ms.append((time.perf_counter() - started) * 1e3)
             plan = self.planner.step(state, obstacles)
             self.solve_ms.append(plan.solve_ms)
@@ -179,6 +187,17 @@ class ClosedLoop:
         self.step_ms.append((time.perf_counter() - started) * 1e3)
         self.outcome = _judge(self.sim, self.frame, self.route, self.world_to_odom, self.time_limit, self.progress)
         return Tick(state, pose, obstacles, command, status)
+
+    def _where(self, frame) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+        """Where the ego believes it is: odom <- base_link, odom <- lidar, odom <- world and its speed, from the
+        ground truth (--pose gt) or from SSF odometry (--pose ssf)."""
+        true_pose = self.world_to_odom @ frame.base_pose
+        if self.ssf_pose is None:
+            return true_pose, self.world_to_odom @ frame.pose, self.world_to_odom, frame.ego.speed
+        lidar_pose = self.ssf_pose.update(frame.stamp_ns, frame.scan.points)
+        pose = self.ssf_pose.base_pose
+        self.pose_errors.append(float(np.linalg.norm(pose[:3, 3] - true_pose[:3, 3])))
+        return pose, lidar_pose, lidar_pose @ invert(frame.pose), self.ssf_pose.speed
 
     def record(self, started: float) -> TrialRecord:
         """The trial's record (call when the outcome is set)."""
@@ -194,7 +213,8 @@ class ClosedLoop:
             fallback_reasons=dict(stats.reasons) if stats else {}, solve_ms_median=_stat(self.solve_ms, 50),
             solve_ms_p95=_stat(self.solve_ms, 95), solve_ms_max=_stat(self.solve_ms, 100),
             perception_ms_median=_stat(self.perceive_ms, 50), step_ms_median=_stat(self.step_ms, 50),
-            wall_s=round(time.perf_counter() - started, 1))
+            wall_s=round(time.perf_counter() - started, 1), pose=spec.pose,
+            pose_error_median_m=_stat(self.pose_errors, 50), pose_error_max_m=_stat(self.pose_errors, 100))
 
 
 def run_trial(spec: TrialSpec) -> TrialRecord:

@@ -1,21 +1,58 @@
-"""The `ssf` perception source: the SSF pipeline (flow <-> segmentation loop, then an obstacle per moving instance,
-its velocity from the flow) on the last two whole scans, plus the static part of the segmentation clustered into
-still boxes (as `dbscan` clusters a whole scan); all in the odometry frame, stamped with the older scan."""
+"""The `ssf` perception source and the `ssf` pose source of the navigation loop, on one run of the SSF pipeline per
+scan: semantic scene flow (flow <-> segmentation loop) from the previous whole scan towards this one. Perception
+makes an obstacle of every moving instance (its velocity from the flow) and clusters the static part into still
+boxes (as `dbscan` clusters a whole scan); the pose comes from the SSF odometry core, as the graph's odometry node
+gives it."""
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 
 from ssf_common.config import build
+from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
 from ssf_eval.nav.perception import ODOM_FRAME, DbscanConfig, Observation, cluster_boxes, stack
-from ssf_eval.pipeline import PerceptionConfig, SsfPerception as Pipeline
+from ssf_eval.pipeline import Perception, PerceptionConfig, SsfPerception as Pipeline
 from ssf_flow_node.core.estimator import WHOLE_SCAN
+from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 
 def whole_scan_config() -> PerceptionConfig:
     """The pipeline as the graph's nodes run it on whole scans."""
     return build(PerceptionConfig, {"flow": WHOLE_SCAN}, source="ssf perception")
+
+
+class PerceivedPair(NamedTuple):
+    """Semantic scene flow of the previous scan (its stamp and points) towards the newest one."""
+
+    stamp_ns: int
+    points: np.ndarray  # (N, 3) the previous scan, sensor frame
+    seen: Perception
+
+
+class ConsecutiveScans:
+    """The SSF pipeline over consecutive scans, run once per scan however many consumers ask."""
+
+    def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu") -> None:
+        self.pipeline = Pipeline(config or whole_scan_config(), device)
+        self._newest: tuple[int, np.ndarray] | None = None
+        self._pair: PerceivedPair | None = None
+        self.iterations: list[int] = []
+
+    def add(self, stamp_ns: int, points: np.ndarray) -> PerceivedPair | None:
+        """The previous scan perceived towards this one (None for the first scan); a scan added twice runs once."""
+        if self._newest is not None and self._newest[0] == stamp_ns:
+            return self._pair
+        previous, self._newest = self._newest, (stamp_ns, np.ascontiguousarray(points[:, :3], dtype=np.float32))
+        if previous is None:
+            self._pair = None
+            return None
+        seen = self.pipeline.perceive(previous[1], self._newest[1], stamp_ns=previous[0], frame_id="lidar", follows=True)
+        self.iterations.append(seen.fusion.iterations)
+        self._pair = PerceivedPair(previous[0], previous[1], seen)
+        return self._pair
 
 
 class SsfPerception:
@@ -25,22 +62,53 @@ class SsfPerception:
     reads_scan = True
 
     def __init__(self, config: PerceptionConfig | None = None, clusters: DbscanConfig | None = None,
-                 device: str = "cpu") -> None:
-        self.pipeline = Pipeline(config or whole_scan_config(), device)
+                 device: str = "cpu", scans: ConsecutiveScans | None = None) -> None:
+        self.scans = scans or ConsecutiveScans(config, device)
         self.clusters = clusters or DbscanConfig()
-        self._previous: tuple[int, np.ndarray, np.ndarray] | None = None  # stamp, points, odom <- lidar
-        self.iterations: list[int] = []
+        self._previous_pose: np.ndarray | None = None  # odom <- lidar of the previous scan
+
+    @property
+    def iterations(self) -> list[int]:
+        """Fusion-loop iterations per perceived pair."""
+        return self.scans.iterations
 
     def observe(self, observation: Observation) -> Obstacles:
         """Obstacles of the previous scan (stamped then), from its flow towards this scan."""
         frame = observation.frame
-        points = np.ascontiguousarray(frame.scan.points[:, :3], dtype=np.float32)
-        previous, self._previous = self._previous, (frame.stamp_ns, points, observation.lidar_pose)
-        if previous is None:
+        pair = self.scans.add(frame.stamp_ns, frame.scan.points)
+        pose1, self._previous_pose = self._previous_pose, observation.lidar_pose
+        if pair is None or pose1 is None:
             return Obstacles.empty(frame.stamp_ns, ODOM_FRAME)
-        stamp_ns, pc1, pose1 = previous
-        seen = self.pipeline.perceive(pc1, points, stamp_ns=stamp_ns, frame_id="lidar", follows=True)
-        self.iterations.append(seen.fusion.iterations)
-        moving = seen.obstacles.transformed(pose1, ODOM_FRAME)
-        still = cluster_boxes(pc1[~seen.fusion.segmentation.dynamic], pose1, stamp_ns, self.clusters).boxes
+        moving = pair.seen.obstacles.transformed(pose1, ODOM_FRAME)
+        still = cluster_boxes(pair.points[~pair.seen.fusion.segmentation.dynamic], pose1, pair.stamp_ns,
+                              self.clusters).boxes
         return stack(moving, still)
+
+
+class SsfPose:
+    """The ego pose from SSF odometry: each scan's odometry once the next scan gave it its semantic flow (as the odometry
+    node publishes it, one scan late), carried to the newest scan by that flow's motion."""
+
+    def __init__(self, mount: np.ndarray, scans: ConsecutiveScans, config: OdomConfig | None = None) -> None:
+        self.mount = mount  # base_link <- lidar
+        self.scans = scans
+        self.odometry = make_odometry("ssf", config)
+        self.lidar_pose = mount.copy()  # odom <- lidar of the newest scan; odom is the first scan's base_link
+        self.speed = 0.0  # forward speed (m/s) from the odometry's twist
+
+    def update(self, stamp_ns: int, points: np.ndarray) -> np.ndarray:
+        """odom <- lidar at this scan: the previous scan's odometry pose carried forward by its flow."""
+        pair = self.scans.add(stamp_ns, points)
+        if pair is None:
+            return self.lidar_pose
+        fusion = pair.seen.fusion
+        step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob))
+        ahead = np.eye(4) if step.next_motion is None else invert(step.next_motion)
+        self.lidar_pose = self.mount @ step.pose @ ahead
+        self.speed = float(step.twist[0])
+        return self.lidar_pose
+
+    @property
+    def base_pose(self) -> np.ndarray:
+        """odom <- base_link of the newest scan."""
+        return self.lidar_pose @ invert(self.mount)
