@@ -201,6 +201,8 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["eval", "nav", f"--workers={d(st.integers(max_value=0))}"],
         lambda d, f: ["eval", "nav", "-p", d(bad_overrides())],
         lambda d, f: ["eval", "nav", d(st.sampled_from(["--json", "--plot", "--resume"])), bad_output(d, f)],
+        lambda d, f: ["eval", "nav", f"--video-first={d(st.integers(max_value=-1))}"],
+        lambda d, f: ["eval", "nav", "--video-first=1", "--video-dir", bad_output(d, f, folder_too=False)],
     ),
     "bench plan": one_of(
         lambda d, f: ["bench", "plan", "--obstacles=" + d(st.sampled_from(["a", "1,b", "-1", ",", "1.5", "99"]))],

@@ -70,6 +70,19 @@ def test_the_pose_from_ssf_odometry_drives_the_route():
     assert tick.pose.shape == (4, 4) and record.perception_ms_median > 0  # the odometry runs the SSF pipeline
 
 
+def test_a_filmed_trial_writes_its_video(tmp_path):
+    from PIL import Image
+
+    from ssf_eval.nav.cli import with_videos
+    from ssf_eval.nav.loop import run_trial
+
+    specs = with_videos(campaign_specs(["gt"], [50], 2, seed=100, route_length=20.0, time_limit=3.0), 1, tmp_path, "gif", 2)
+    assert [bool(spec.video) for spec in specs] == [True, False] and specs[0].key == "gt/50/100/20m/gt"
+    record = run_trial(specs[0])
+    with Image.open(tmp_path / "gt_50_100.gif") as video:
+        assert video.n_frames == record.ticks and video.size[1] == 720
+
+
 def fake_trial(spec: TrialSpec) -> TrialRecord:
     """A trial without the simulator: succeeds on even seeds."""
     won = spec.seed % 2 == 0
@@ -157,6 +170,8 @@ def test_the_table_and_the_figure(tmp_path):
     (["--route-length", "5"], "--route-length must be at least 20 m"),
     (["-p", "horizon:=1"], "horizon"),
     (["--table-only"], "--table-only needs --resume FILE"),
+    (["--video-first", "-1"], "--video-first must be 0 or more"),
+    (["--video-first", "1", "--video-dir", "/proc/nav"], "--video-dir"),
 ])
 def test_bad_flags_are_one_line(flags, message, tmp_path):
     result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "eval", "nav", "--resume",

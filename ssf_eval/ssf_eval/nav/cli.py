@@ -42,6 +42,11 @@ def register(groups: CommandGroups) -> None:
                      help="run nothing: the table (and --json, --plot) of the trials the --resume log already holds")
     nav.add_argument("--json", type=Path, help="write the table (one row per cell) and the effective config here")
     nav.add_argument("--plot", type=Path, metavar="PNG", help="success rate, time and speed against agents")
+    nav.add_argument("--video-first", type=int, default=0, metavar="N",
+                     help="film the first N trials of every cell as bird's-eye videos (default 0: none)")
+    nav.add_argument("--video-dir", type=Path, default=Path("nav_videos"), metavar="DIR",
+                     help="where the videos go, one PERCEPTION_AGENTS_SEED.mp4 per filmed trial (default nav_videos)")
+    nav.add_argument("--video-format", choices=("mp4", "gif"), default="mp4", help="video format (default mp4)")
     nav.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                      help="planner config override, e.g. -p horizon:=12 -p obstacles.max_obstacles:=8")
     nav.set_defaults(func=run_eval)
@@ -88,6 +93,7 @@ def run_eval(args: argparse.Namespace) -> int:
     check_writable(log_path, "trial log")
     specs = campaign_specs(perceptions, agents, args.trials, args.seed, args.route_length, args.time_limit, args.pose,
                            overrides)
+    specs = with_videos(specs, args.video_first, args.video_dir, args.video_format, args.trials)
     runner = RayRunner(args.ray) if args.ray else LocalRunner(args.workers or os.cpu_count() or 1)
     print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "
           f"route {args.route_length or 'full'} m, trial log {log_path}", file=sys.stderr)
@@ -112,6 +118,27 @@ def run_eval(args: argparse.Namespace) -> int:
         print(plot_cells(cells, args.plot, f"{trials} trials per cell, route {args.route_length or 'full'} m"),
               file=sys.stderr)
     return 0
+
+
+def with_videos(specs: list, first: int, folder: Path, suffix: str, trials: int) -> list:
+    """The specs, the first `first` trials of every cell set to film themselves into `folder`."""
+    from dataclasses import replace
+
+    from ssf_common.errors import ConfigError
+    from ssf_common.render.video import check_video_path
+
+    if first < 0:
+        raise ConfigError(f"--video-first must be 0 or more, got {first}")
+    if first == 0:
+        return specs
+    check_video_path(folder / f"check.{suffix}", "--video-dir")
+    filmed = []
+    for spec in specs:
+        video = ""
+        if spec.seed - specs[0].seed < min(first, trials):
+            video = str(folder / f"{spec.perception}_{spec.agents}_{spec.seed}.{suffix}")
+        filmed.append(replace(spec, video=video))
+    return filmed
 
 
 def format_table(cells) -> str:

@@ -16,9 +16,10 @@ from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Simulator
 from ssf_common.config import build
 from ssf_common.errors import ConfigError
-from ssf_common.records import Obstacles
+from ssf_common.records import Obstacles, Plan
 from ssf_common.geometry.se3 import invert
 from ssf_eval.nav.perception import ODOM_FRAME, Observation, make_perception
+from ssf_eval.nav.film import TrialFilm
 from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import vehicle_state
@@ -57,6 +58,7 @@ class TrialSpec:
     pose: str = "gt"
     planner: dict[str, Any] = field(default_factory=dict)  # PlannerConfig overrides (dotted names)
     scenario: dict[str, Any] = field(default_factory=dict)  # scenario overrides (dotted names), e.g. a lighter LiDAR
+    video: str = ""  # film the trial into this file (.mp4 or .gif); not part of its key
 
     @property
     def key(self) -> str:
@@ -128,6 +130,7 @@ class Tick:
     obstacles: Obstacles | None
     command: VelocityCommand
     status: str  # the planner's TickStatus value, or "follower"
+    plan: Plan | None = None  # the MPC plan (odometry frame); None for the follower
 
 
 class ClosedLoop:
@@ -173,20 +176,21 @@ class ClosedLoop:
         started = time.perf_counter()
         pose, lidar_pose, world_to_odom, speed = self._where(frame)
         state = vehicle_state(frame.stamp_ns, pose, speed)
-        obstacles, status = None, "follower"
+        obstacles, status, plan = None, "follower", None
         if self.follower is not None:
             command = self.follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
         else:
             obstacles = self.perception.observe(Observation(frame, lidar_pose, world_to_odom))
             self.perceive_ms.append((time.perf_counter() - started) * 1e3)
-            plan = self.planner.step(state, obstacles)
-            self.solve_ms.append(plan.solve_ms)
-            command, status = VelocityCommand(plan.command.linear, plan.command.angular), plan.status.value
+            step = self.planner.step(state, obstacles)
+            self.solve_ms.append(step.solve_ms)
+            command, status = VelocityCommand(step.command.linear, step.command.angular), step.status.value
+            plan = step.plan
         started = time.perf_counter()
         self.frame = self.sim.step(command)
         self.step_ms.append((time.perf_counter() - started) * 1e3)
         self.outcome = _judge(self.sim, self.frame, self.route, self.world_to_odom, self.time_limit, self.progress)
-        return Tick(state, pose, obstacles, command, status)
+        return Tick(state, pose, obstacles, command, status, plan)
 
     def _where(self, frame) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Where the ego believes it is: odom <- base_link, odom <- lidar, odom <- world and its speed, from the
@@ -221,9 +225,16 @@ def run_trial(spec: TrialSpec) -> TrialRecord:
     """Drive one trial to its end: success, collision, timeout or stuck."""
     started = time.perf_counter()
     loop = ClosedLoop(spec)
+    film = TrialFilm(spec.video) if spec.video else None
     while loop.outcome is None:
-        loop.tick()
-    return loop.record(started)
+        frame = loop.frame
+        tick = loop.tick()
+        if film is not None:
+            film.add(loop, frame, tick)
+    record = loop.record(started)
+    if film is not None:
+        film.write(f"{spec.key}: {record.outcome}")
+    return record
 
 
 def _judge(sim: Simulator, frame, route: Route, world_to_odom: np.ndarray, time_limit: float,

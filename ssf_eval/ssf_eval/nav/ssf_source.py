@@ -41,6 +41,11 @@ class ConsecutiveScans:
         self._pair: PerceivedPair | None = None
         self.iterations: list[int] = []
 
+    @property
+    def latest(self) -> PerceivedPair | None:
+        """The pair perceived for the newest scan (None before the second scan)."""
+        return self._pair
+
     def add(self, stamp_ns: int, points: np.ndarray) -> PerceivedPair | None:
         """The previous scan perceived towards this one (None for the first scan); a scan added twice runs once."""
         if self._newest is not None and self._newest[0] == stamp_ns:
