@@ -35,6 +35,7 @@ PUBLISHED_TYPES = (
     "ssf_interfaces/msg/ObstacleArray",
     "ssf_interfaces/msg/FusionState",
     "ssf_interfaces/msg/EpisodeResult",
+    "ssf_interfaces/msg/PlannerState",
 )
 
 

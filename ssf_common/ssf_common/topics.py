@@ -13,6 +13,7 @@ PATH = "/ssf/path"
 MAP = "/ssf/map"
 CMD_VEL = "/cmd_vel"
 PLAN = "/ssf/plan"
+PLANNER_STATE = "/ssf/planner_state"  # one MPC tick: status, solve time, rounds, obstacles, clearance
 CLOCK = "/clock"
 GT_FLOW = "/sim/ground_truth/flow"
 GT_OBSTACLES = "/sim/ground_truth/obstacles"

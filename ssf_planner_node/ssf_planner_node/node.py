@@ -5,6 +5,7 @@ the pose at their stamp. Stale obstacles cap the speed, stale odometry brakes, e
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
@@ -21,7 +22,7 @@ from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import PoseHistory, obstacles_in_route_frame, state_of
 from ssf_planner_node.core.models import Command
-from ssf_planner_node.core.planner import RdaPlanner, TickStatus
+from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus
 from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
@@ -53,6 +54,7 @@ class PlannerNode(Node):
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
         self.markers = MarkerSet()
         self.marker_pub = self.create_publisher("visualization_msgs/msg/MarkerArray", topics.SSF_MARKERS, QOS_DEFAULT)
+        self.state_pub = self.create_publisher("ssf_interfaces/msg/PlannerState", topics.PLANNER_STATE, QOS_DEFAULT)
         self.stats = StageStats(self.get_name())
         advertise(self, self.stats, refresh=self._refresh)
         self.create_timer(self.config.control_period, self.watchdog)
@@ -113,9 +115,18 @@ class PlannerNode(Node):
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
         self.marker_pub.publish(self.markers.plan(step.plan))
+        self._publish_state(odometry.stamp_ns, step)
         self.stats.record(step.solve_ms, "ticks")
         if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
             self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
+
+    def _publish_state(self, stamp_ns: int, step: PlanStep) -> None:
+        """The tick on /ssf/planner_state (what the viewer plots: solve time, fallbacks, clearance)."""
+        self.state_pub.publish(messages.msg_type("ssf_interfaces/msg/PlannerState")(
+            header=messages.header(stamp_ns, self.planner.route.frame_id if self.planner.route else "odom"),
+            status=step.status.value, reason=step.reason, solve_ms=float(step.solve_ms), rounds=int(step.rounds),
+            obstacles=int(step.obstacles), clearance=float(step.clearance) if math.isfinite(step.clearance) else -1.0,
+            fallbacks=int(self.planner.stats.fallbacks)))
 
     def _anchored(self, odometry: OdometryEstimate) -> OdometryEstimate:
         """Odometry re-expressed from its first pose, in the route's frame."""

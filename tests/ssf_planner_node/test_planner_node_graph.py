@@ -28,9 +28,13 @@ def route_message(route) -> object:
     return plan_to_msg(Plan(0, route.frame_id, np.zeros(len(waypoints)), np.c_[waypoints, heading, np.zeros(len(waypoints))]))
 
 
+states: list = []  # /ssf/planner_state messages of the running test
+
+
 @pytest.fixture
 def graph():
     started: list = []
+    states.clear()
 
     def start(*parameters: str):
         node = PlannerNode(argv=["--ros-args", "-p", "report_period_s:=60.0", *sum((["-p", p] for p in parameters), [])])
@@ -38,6 +42,7 @@ def graph():
         probe = Node("probe")
         commands: list = []
         probe.create_subscription("geometry_msgs/msg/Twist", "/cmd_vel", commands.append)
+        probe.create_subscription("ssf_interfaces/msg/PlannerState", "/ssf/planner_state", states.append)
         probe.create_subscription("nav_msgs/msg/Path", "/ssf/plan", lambda _msg: None)
         probe.spin_in_thread()
         publishers = {name: probe.create_publisher(kind, topic, qos) for name, kind, topic, qos in (
@@ -72,6 +77,11 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
         assert command.linear.x == pytest.approx(tick.command.linear, abs=1e-4)
         assert command.angular.z == pytest.approx(tick.command.angular, abs=1e-4)
     assert node.planner.stats.total == len(ticks) and node.planner.stats.fallbacks == 0
+    assert wait_until(lambda: len(states) == len(ticks))  # one /ssf/planner_state per tick, for the viewer's plots
+    assert all(state.status == "solved" and state.solve_ms > 0 and state.rounds >= 1 for state in states), [(s.status, s.solve_ms, s.rounds) for s in states]
+    assert [state.header.stamp.sec * 10**9 + state.header.stamp.nanosec for state in states] == [
+        tick.state.stamp_ns for tick in ticks]
+    assert states[-1].fallbacks == 0 and all(state.clearance == -1.0 or state.clearance > 0 for state in states)
 
 
 def test_stale_obstacles_cap_the_speed_and_stale_odometry_brakes_each_said_once(graph, capfd):

@@ -3,7 +3,7 @@ configurations and written in the form the Foxglove app's "Import from file" rea
 
 The 3D panel shows the scan coloured by its static/dynamic label, the perceived obstacle boxes with their velocity
 arrows and the plan (`/ssf/markers`), the true agents (`/sim/markers`), the plan as a path, the odometry path and
-the static map; the plots show the fusion loop's Δ per iteration and the planner's commands.
+the static map; the plots show the fusion loop's Δ per iteration, the planner's commands and the MPC's solve time.
 
 Regenerate the shipped file with `python -m ssf_common.viewer.layout docs/viewer/ssf.foxglove-layout.json`."""
 
@@ -30,6 +30,7 @@ LAYOUT_TOPICS = {
     topics.ODOM: "nav_msgs/msg/Odometry",
     topics.FUSION_STATE: "ssf_interfaces/msg/FusionState",
     topics.CMD_VEL: "geometry_msgs/msg/Twist",
+    topics.PLANNER_STATE: "ssf_interfaces/msg/PlannerState",
 }
 
 
@@ -71,14 +72,21 @@ def panels() -> dict[str, Any]:
                              timestamp_method="receiveTime")
                for field, label in (("delta_total", "Δ_total"), ("delta_flow", "Δ flow"), ("delta_mask", "Δ mask"))],
     ))
-    planner = fl.PlotPanel(title="Planner: commands (MPC solve time: no topic yet)", config=fl.PlotConfig(
+    planner = fl.PlotPanel(title="Planner: commands", config=fl.PlotConfig(
         x_axis_val="timestamp", show_legend=True,
         paths=[fl.PlotSeries(value=f"{topics.CMD_VEL}.linear.x", label="speed command (m/s)", enabled=True,
                              timestamp_method="receiveTime"),
                fl.PlotSeries(value=f"{topics.CMD_VEL}.angular.z", label="yaw rate command (rad/s)", enabled=True,
                              timestamp_method="receiveTime")],
     ))
-    return {"3D!ssf": scene, "Plot!fusion_delta": delta, "Plot!fusion_time": delta_time, "Plot!planner": planner}
+    solve = fl.PlotPanel(title="Planner: MPC solve time and fallbacks", config=fl.PlotConfig(
+        x_axis_val="timestamp", show_legend=True, y_axis_label="ms",
+        paths=[fl.PlotSeries(value=f"{topics.PLANNER_STATE}.{field}", label=label, enabled=True,
+                             timestamp_method="receiveTime")
+               for field, label in (("solve_ms", "solve time (ms)"), ("fallbacks", "fallbacks so far"))],
+    ))
+    return {"3D!ssf": scene, "Plot!fusion_delta": delta, "Plot!fusion_time": delta_time, "Plot!planner": planner,
+            "Plot!planner_solve": solve}
 
 
 def foxglove_layout() -> dict[str, Any]:
@@ -96,8 +104,9 @@ def foxglove_layout() -> dict[str, Any]:
         "layout": {
             "direction": "row", "splitPercentage": 64, "first": "3D!ssf",
             "second": {"direction": "column", "splitPercentage": 36, "first": "Plot!fusion_delta",
-                       "second": {"direction": "column", "splitPercentage": 50, "first": "Plot!fusion_time",
-                                  "second": "Plot!planner"}},
+                       "second": {"direction": "column", "splitPercentage": 33, "first": "Plot!fusion_time",
+                                  "second": {"direction": "column", "splitPercentage": 50, "first": "Plot!planner",
+                                             "second": "Plot!planner_solve"}}},
         },
     }
 
