@@ -12,7 +12,8 @@ ROOT = Path(__file__).resolve().parents[1]
 NODE_PACKAGES = ("sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_odom_node", "ssf_planner_node")
 ABOVE_COMMON = NODE_PACKAGES + ("ssf_eval",)
 CORE_LIBRARIES = {"numpy", "scipy", "torch", "sklearn", "open3d", "casadi", "pydantic", "small_gicp"}
-CORE_COMMON = ("ssf_common.config", "ssf_common.errors", "ssf_common.geometry", "ssf_common.dataset", "ssf_common.records")
+CORE_COMMON = ("ssf_common.config", "ssf_common.errors", "ssf_common.geometry", "ssf_common.dataset", "ssf_common.records",
+               "ssf_common.checkpoints")
 
 
 def modules_of(package: str) -> list[Path]:

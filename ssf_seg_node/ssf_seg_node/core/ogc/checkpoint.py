@@ -8,7 +8,7 @@ from typing import Any, NamedTuple
 
 import torch
 
-from ssf_common.errors import DataError
+from ssf_common.checkpoints import read_payload, unfit, write_payload
 from ssf_seg_node.core.base import SegInput
 from ssf_seg_node.core.ogc.network import OgcConfig, OgcNet, PointNetClassifier
 
@@ -45,30 +45,20 @@ def shipped_weights(kind: NetworkKind, kind_input: SegInput) -> Path:
 def save(path: Path, kind: NetworkKind, network: torch.nn.Module, training: dict[str, Any],
          state: dict[str, Any] | None = None) -> None:
     """Write a checkpoint atomically (temporary file, then rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    payload = {"format": FORMAT, "kind": kind.value, "network": network.config.model_dump(mode="json"),
-               "training": training, "weights": network.state_dict(), "state": state or {}}
-    temporary = path.with_suffix(path.suffix + ".tmp")
-    torch.save(payload, temporary)
-    temporary.replace(path)
+    write_payload(path, {"format": FORMAT, "kind": kind.value, "network": network.config.model_dump(mode="json"),
+                         "training": training, "weights": network.state_dict(), "state": state or {}})
 
 
 def load(path: Path, device: str = "cpu") -> Checkpoint:
     """Read a checkpoint; a missing, foreign or incompatible file is one DataError line."""
-    if not path.is_file():
-        raise DataError(f"{path}: no such weights file (train one with `ssf train seg` or pass the weights option)")
-    try:
-        payload = torch.load(path, map_location=device, weights_only=True)
-    except Exception as err:  # torch raises many types for corrupt or non-torch files
-        raise DataError(f"{path}: not a readable weights file ({type(err).__name__}: {str(err).splitlines()[0][:120]})") from None
-    if not isinstance(payload, dict) or payload.get("format") != FORMAT:
-        raise DataError(f"{path}: not an ssf segmentation network checkpoint (expected format '{FORMAT}')")
+    payload = read_payload(path, FORMAT, "an ssf segmentation network checkpoint",
+                           "train one with `ssf train seg` or pass the weights option", device)
     try:
         kind = NetworkKind(payload["kind"])
         config = OgcConfig.model_validate(payload["network"])
         network = kind.build(config)
         network.load_state_dict(payload["weights"])
     except Exception as err:
-        raise DataError(f"{path}: weights do not fit the network they describe ({str(err).splitlines()[0][:160]})") from None
+        raise unfit(path, err) from None
     network.to(device).eval()
     return Checkpoint(kind, network, config, dict(payload.get("training") or {}), dict(payload.get("state") or {}))
