@@ -31,6 +31,15 @@ def test_small_scans_are_kept_whole():
     assert len(sample.indices) == 500
 
 
+@pytest.mark.parametrize("count, share, kept", [(20000, 0.0, 2048), (20000, 0.05, 2048), (20000, 0.3, 6000),
+                                                (1000, 0.3, 1000)])
+def test_dense_scans_keep_a_share_of_their_points(count, share, kept):
+    points = scan(count) * np.float32([0.5, 0.5, 1.0])  # all within 30 m: every point is a candidate
+    config = PreprocessConfig(points=2048, points_share=share, max_range=100.0)
+    sample = downsample(points, config, np.random.default_rng(0))
+    assert len(sample.indices) == kept and len(np.unique(sample.indices)) == kept
+
+
 def test_motion_propagation_is_exact_on_sampled_points_and_reaches_only_their_surroundings():
     points = scan(5000)
     sample = downsample(points, PreprocessConfig(points=1000, max_range=100.0), np.random.default_rng(1))

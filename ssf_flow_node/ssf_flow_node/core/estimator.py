@@ -21,7 +21,7 @@ ESTIMATORS = ("zero", "ego", "rigid", "asf")
 # thinned where the scan is dense so that far objects keep theirs, a few ground points join the ego registration (they
 # pin its height, so a short schedule converges), and every other point gets its flow from them. Pairs already cut
 # (`ssf eval flow`) use the plain defaults.
-WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 1000.0, "range_balance": True},
+WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 1000.0, "range_balance": True, "points_share": 0.3},
               "registration": {"source_points": 1024, "refine_iterations": 20, "tolerance": 1e-4}}
 
 

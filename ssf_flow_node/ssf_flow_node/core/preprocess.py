@@ -18,7 +18,10 @@ from ssf_common.geometry.sampling import Sampling, sample_indices
 class PreprocessConfig(Section):
     """Range crop and downsampling applied to both scans before estimation."""
 
-    points: int = Field(8192, ge=64, description="points kept per scan")
+    points: int = Field(8192, ge=64, description="points kept per scan (at least, with points_share)")
+    points_share: float = Field(0.0, ge=0.0, le=1.0, description="dense scans keep this share of their candidate points "
+                                "(cropped, ground removed) when that is more than `points`: the budget follows the "
+                                "sensor's density instead of one sensor's (0: always `points`)")
     sampling: Sampling = Sampling.RANDOM
     voxel_size: float = Field(0.1, gt=0.0, description="voxel edge (m) for voxel sampling")
     min_range: float = Field(0.0, ge=0.0, description="points closer to the sensor are dropped (m)")
@@ -80,7 +83,7 @@ def crop(points: np.ndarray, config: PreprocessConfig) -> np.ndarray:
 
 
 def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Generator) -> Sample:
-    """Crop and reduce a scan to at most `config.points` points, remembering where each came from."""
+    """Crop and reduce a scan to its point budget, remembering where each came from."""
     candidates = crop(points, config)
     ground = None
     if config.remove_ground and candidates.size:
@@ -90,10 +93,16 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
         candidates = candidates[~flat]
     if candidates.size == 0:
         raise DataError(f"scan has no points between {config.min_range} m and {config.max_range} m")
-    if config.range_balance and candidates.size > config.points:
-        candidates = np.sort(candidates[range_balanced(points[candidates], config.points, rng)])
-    candidates = candidates[sample_indices(points[candidates], config.points, rng, config.sampling, config.voxel_size)]
+    budget = point_budget(candidates.size, config)
+    if config.range_balance and candidates.size > budget:
+        candidates = np.sort(candidates[range_balanced(points[candidates], budget, rng)])
+    candidates = candidates[sample_indices(points[candidates], budget, rng, config.sampling, config.voxel_size)]
     return Sample(candidates.astype(np.int64), points[candidates], None if ground is None else np.sort(ground))
+
+
+def point_budget(candidates: int, config: PreprocessConfig) -> int:
+    """Points to keep of a scan with this many candidates: `points`, or `points_share` of them when that is more."""
+    return max(config.points, int(config.points_share * candidates))
 
 
 def range_balanced(points: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
