@@ -70,6 +70,13 @@ def test_the_pose_from_ssf_odometry_drives_the_route():
     assert tick.pose.shape == (4, 4) and record.perception_ms_median > 0  # the odometry runs the SSF pipeline
 
 
+def test_cells_keep_the_pose_sources_apart():
+    gt, ssf = fake_trial(TrialSpec("ssf", 50, 0)), replace(fake_trial(TrialSpec("ssf", 50, 0, pose="ssf")), pose="ssf")
+    cells = summarise([gt, ssf, replace(ssf, seed=2, pose_error_max_m=0.4)])
+    assert [(cell.source, cell.trials) for cell in cells] == [("ssf", 1), ("ssf + ssf pose", 2)]
+    assert cells[1].pose_error_max_m == pytest.approx(0.2)
+
+
 def test_a_filmed_trial_writes_its_video(tmp_path):
     from PIL import Image
 

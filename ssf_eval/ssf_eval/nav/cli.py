@@ -98,8 +98,8 @@ def run_eval(args: argparse.Namespace) -> int:
     print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "
           f"route {args.route_length or 'full'} m, trial log {log_path}", file=sys.stderr)
     if args.table_only:
-        wanted = {spec.key for spec in specs}
-        records = [record for record in TrialLog(log_path).records() if record.key in wanted]
+        wanted = {_without_pose(spec.key) for spec in specs}  # a log may hold trials of either pose source
+        records = [record for record in TrialLog(log_path).records() if _without_pose(record.key) in wanted]
     else:
         records = run_campaign(specs, TrialLog(log_path), runner)
     cells = summarise(records, planner.reference_speed)
@@ -118,6 +118,11 @@ def run_eval(args: argparse.Namespace) -> int:
         print(plot_cells(cells, args.plot, f"{trials} trials per cell, route {args.route_length or 'full'} m"),
               file=sys.stderr)
     return 0
+
+
+def _without_pose(key: str) -> str:
+    """A trial key without its pose source (the last part)."""
+    return key.rsplit("/", 1)[0]
 
 
 def with_videos(specs: list, first: int, folder: Path, suffix: str, trials: int) -> list:
@@ -149,7 +154,7 @@ def format_table(cells) -> str:
         low, high = cell.success_ci95
         time_s = "–" if cell.navigation_time_s is None else f"{cell.navigation_time_s:.1f}"
         speed = "–" if cell.average_speed_mps is None else f"{cell.average_speed_mps:.2f}"
-        lines.append(f"| {cell.perception} | {cell.agents} | {cell.success_rate:.2f} ({low:.2f}–{high:.2f}) | {time_s} | "
+        lines.append(f"| {cell.source} | {cell.agents} | {cell.success_rate:.2f} ({low:.2f}–{high:.2f}) | {time_s} | "
                      f"{speed} | {cell.collisions} | {cell.timeouts} | {cell.stuck} | {cell.barn_score:.3f} | "
                      f"{cell.trials} |")
     return "\n".join(lines)

@@ -7,7 +7,8 @@ from pathlib import Path
 
 from ssf_eval.nav.stats import CellSummary
 
-COLOURS = {"gt": "tab:green", "ssf": "tab:red", "dbscan": "tab:blue", "dbscan0": "tab:cyan", "follower": "tab:grey"}
+COLOURS = {"gt": "tab:green", "ssf": "tab:orange", "ssf + ssf pose": "tab:red", "dbscan": "tab:blue", "dbscan0": "tab:cyan",
+           "follower": "tab:grey"}
 
 
 def plot_cells(cells: list[CellSummary], path: Path, title: str) -> str:
@@ -18,19 +19,19 @@ def plot_cells(cells: list[CellSummary], path: Path, title: str) -> str:
     import matplotlib.pyplot as plt
 
     figure, axes = plt.subplots(1, 3, figsize=(15, 4.3))
-    for perception in dict.fromkeys(cell.perception for cell in cells):
-        rows = sorted((cell for cell in cells if cell.perception == perception), key=lambda cell: cell.agents)
+    for source in dict.fromkeys(cell.source for cell in cells):
+        rows = sorted((cell for cell in cells if cell.source == source), key=lambda cell: cell.agents)
         agents = [cell.agents for cell in rows]
-        colour = COLOURS.get(perception)
+        colour = COLOURS.get(source)
         rate = [cell.success_rate for cell in rows]
         errors = [[cell.success_rate - cell.success_ci95[0] for cell in rows],
                   [cell.success_ci95[1] - cell.success_rate for cell in rows]]
-        axes[0].errorbar(agents, rate, yerr=errors, marker="o", capsize=3, label=perception, color=colour)
+        axes[0].errorbar(agents, rate, yerr=errors, marker="o", capsize=3, label=source, color=colour)
         for axis, values in ((axes[1], [cell.navigation_time_s for cell in rows]),
                              (axes[2], [cell.average_speed_mps for cell in rows])):
             shown = [(a, v) for a, v in zip(agents, values) if v is not None]
             if shown:
-                axis.plot(*zip(*shown), marker="o", label=perception, color=colour)
+                axis.plot(*zip(*shown), marker="o", label=source, color=colour)
     for axis, label in zip(axes, ("success rate (95 % Wilson interval)", "navigation time of successes (s)",
                                   "average speed of successes (m/s)")):
         axis.set_xlabel("moving agents")

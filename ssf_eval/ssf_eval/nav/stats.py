@@ -55,6 +55,13 @@ class CellSummary:
     path_length_m_mean: float
     fallback_rate: float  # fallback ticks / ticks
     solve_ms_p95: float  # median over trials of each trial's p95
+    pose: str = "gt"  # where the ego pose came from: the simulator (gt) or SSF odometry (ssf)
+    pose_error_max_m: float = 0.0  # with the ssf pose: the median over trials of each trial's largest position error
+
+    @property
+    def source(self) -> str:
+        """The row's name: the perception source, and the pose source when it is not the ground truth."""
+        return self.perception if self.pose == "gt" else f"{self.perception} + {self.pose} pose"
 
     def to_json(self) -> dict[str, Any]:
         """Plain data for the result file."""
@@ -62,11 +69,12 @@ class CellSummary:
 
 
 def summarise(records: Iterable[TrialRecord], reference_speed: float = 10.0) -> list[CellSummary]:
-    """Per (perception, agents) cell, in the order cells first appear."""
-    cells: dict[tuple[str, int], list[TrialRecord]] = {}
+    """Per (perception, pose, agents) cell, in the order cells first appear."""
+    cells: dict[tuple[str, str, int], list[TrialRecord]] = {}
     for record in records:
-        cells.setdefault((record.perception, record.agents), []).append(record)
-    return [summarise_cell(perception, agents, rows, reference_speed) for (perception, agents), rows in cells.items()]
+        cells.setdefault((record.perception, record.pose, record.agents), []).append(record)
+    return [summarise_cell(perception, agents, rows, reference_speed)
+            for (perception, _pose, agents), rows in cells.items()]
 
 
 def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], reference_speed: float) -> CellSummary:
@@ -88,7 +96,8 @@ def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], refere
         min_clearance_m_median=round(_median([row.min_clearance_m for row in rows]), 3),
         path_length_m_mean=round(sum(row.path_length_m for row in rows) / len(rows), 1),
         fallback_rate=round(sum(row.fallbacks for row in rows) / ticks, 5) if ticks else 0.0,
-        solve_ms_p95=round(_median([row.solve_ms_p95 for row in rows]), 2))
+        solve_ms_p95=round(_median([row.solve_ms_p95 for row in rows]), 2), pose=rows[0].pose,
+        pose_error_max_m=round(_median([row.pose_error_max_m for row in rows]), 3))
 
 
 def _mean(values: list[float]) -> float | None:
