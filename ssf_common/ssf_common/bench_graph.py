@@ -51,6 +51,8 @@ class GraphBench:
     latency_p95_ms: float | None
     scans_dropped_ratio: float
     nodes: list[NodeRow] = field(default_factory=list)
+    episode: str = "running"  # how the simulated drive stood when the measurement ended: running, success, collision, timeout
+    episode_time_s: float = 0.0  # simulated seconds driven by then
 
 
 class Probe:
@@ -66,6 +68,7 @@ class Probe:
         self.odometry: list[tuple[float, int]] = []
         self.commands: list[float] = []
         self.diagnostics: dict[str, dict[str, float]] = {}
+        self.episode: tuple[str, float] = ("running", 0.0)
         self.node.create_subscription("rosgraph_msgs/msg/Clock", topics.CLOCK, self.on_clock, QOS_DEFAULT)
         self.node.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA,
                                       raw=True)
@@ -73,7 +76,14 @@ class Probe:
         self.node.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_command, QOS_DEFAULT)
         self.node.create_subscription("diagnostic_msgs/msg/DiagnosticArray", topics.DIAGNOSTICS, self.on_diagnostics,
                                       QOS_DEFAULT)
+        self.node.create_subscription("ssf_interfaces/msg/EpisodeResult", topics.EPISODE, self.on_episode, QOS_DEFAULT)
         self.node.spin_in_thread()
+
+    def on_episode(self, msg: Any) -> None:
+        names = {msg.OUTCOME_RUNNING: "running", msg.OUTCOME_SUCCESS: "success", msg.OUTCOME_COLLISION: "collision",
+                 msg.OUTCOME_TIMEOUT: "timeout"}
+        with self.lock:
+            self.episode = (names.get(msg.outcome, f"outcome {msg.outcome}"), float(msg.time))
 
     def on_clock(self, msg: Any) -> None:
         with self.lock:
@@ -208,7 +218,8 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None) -
         latency_p50_ms=float(np.percentile(latency, 50)) if latency else None,
         latency_p95_ms=float(np.percentile(latency, 95)) if latency else None,
         scans_dropped_ratio=1.0 - answered_scans / len(scans) if scans else 1.0,
-        nodes=node_rows(probe, samples, window_start))
+        nodes=node_rows(probe, samples, window_start), episode=probe.episode[0],
+        episode_time_s=round(probe.episode[1], 2))
 
 
 def format_bench(bench: GraphBench) -> str:
@@ -218,6 +229,9 @@ def format_bench(bench: GraphBench) -> str:
     lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
              f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %",
              f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'RSS MB':>7} {'MB/10min':>9}"]
+    if bench.episode != "running":
+        lines.insert(1, f"the drive ended after {bench.episode_time_s:.1f} s of simulated time ({bench.episode}): "
+                        "the figures cover the graph until then")
     for row in bench.nodes:
         median = f"{row.processing_ms_median:7.1f}" if row.processing_ms_median is not None else f"{'-':>7}"
         p95_row = f"{row.processing_ms_p95:7.1f}" if row.processing_ms_p95 is not None else f"{'-':>7}"

@@ -6,6 +6,7 @@ the pose at their stamp. Stale obstacles cap the speed, stale odometry brakes, e
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import replace
 from typing import Any
 
@@ -20,9 +21,9 @@ from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_planner_node.core.config import PlannerConfig
-from ssf_planner_node.core.frames import PoseHistory, obstacles_in_route_frame, state_of
+from ssf_planner_node.core.frames import PoseHistory, carried_forward, obstacles_in_route_frame, state_of
 from ssf_planner_node.core.models import Command
-from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus
+from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus, VehicleState
 from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
@@ -49,6 +50,7 @@ class PlannerNode(Node):
         self.obstacles: Obstacles | None = None
         self.last_odometry_s: float | None = None
         self.last_command = Command(0.0, 0.0)
+        self.sent: deque[tuple[int, Command]] = deque(maxlen=200)  # (clock stamp, command) for latency compensation
         self.said: set[str] = set()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
@@ -108,7 +110,7 @@ class PlannerNode(Node):
         self.poses.add(odometry.stamp_ns, odometry.pose)
         self.last_odometry_s = self.get_clock().now_s()
         self._said_if(False, "odometry")
-        state = state_of(odometry)
+        state = self._now(state_of(odometry))
         obstacles = self._obstacles_now(odometry.frame_id, odometry.stamp_ns)
         stale = obstacles is None
         step = self.planner.step(state, obstacles, stale=stale)
@@ -119,6 +121,16 @@ class PlannerNode(Node):
         self.stats.record(step.solve_ms, "ticks")
         if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
             self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
+
+    def _now(self, state: VehicleState) -> VehicleState:
+        """The odometry's state carried forward to now by the commands sent since its stamp: the perception chain's
+        latency would otherwise put the plan's start where the car was, not where it is."""
+        now_ns = self.get_clock().now_ns()
+        latency = (now_ns - state.stamp_ns) * 1e-9
+        if not 0.0 < latency <= self.config.max_latency_s:
+            return state
+        vehicle = self.config.vehicle
+        return carried_forward(state, list(self.sent), now_ns, vehicle.max_accel, vehicle.max_decel)
 
     def _publish_state(self, stamp_ns: int, step: PlanStep) -> None:
         """The tick on /ssf/planner_state (what the viewer plots: solve time, fallbacks, clearance)."""
@@ -170,6 +182,7 @@ class PlannerNode(Node):
 
     def _publish(self, command: Command) -> None:
         self.last_command = command
+        self.sent.append((self.get_clock().now_ns(), command))
         vector = messages.msg_type("geometry_msgs/msg/Vector3")
         self.cmd_pub.publish(messages.msg_type("geometry_msgs/msg/Twist")(
             linear=vector(x=float(command.linear), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=float(command.angular))))

@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from ssf_common import messages
-from ssf_common.bench_graph import bench_graph_spec, latencies_ms, node_rows
+from ssf_common.bench_graph import GraphBench, Probe, bench_graph_spec, format_bench, latencies_ms, node_rows
 from ssf_common.diagnostics import StageStats, read_status
 
 
@@ -58,3 +58,15 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
     assert {"sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_fusion_node", "ssf_odom_node", "ssf_planner_node"} <= set(executables)
     sim = next(node for node in graph.nodes if node.executable == "sim_bridge")
     assert sim.parameters["mode"] == "realtime" and sim.parameters["driver"] == "none"
+
+
+def test_a_drive_that_ended_early_is_said_with_its_outcome():
+    collision = messages.msg_type("ssf_interfaces/msg/EpisodeResult")(
+        header=messages.header(0, ""), scenario="urban_200", seed=3, outcome=2, time=13.5, distance=25.0,
+        average_speed=1.9, min_clearance=0.0, num_agents=200)
+    probe = ScriptedProbe()
+    Probe.on_episode(probe, collision)
+    assert probe.episode == ("collision", 13.5)
+    bench = GraphBench(14.0, "urban_200", 127, 3.1, 656.0, 824.0, 0.68, episode="collision", episode_time_s=13.5)
+    assert "ended after 13.5 s of simulated time (collision)" in format_bench(bench).splitlines()[1]
+    assert "ended after" not in format_bench(GraphBench(60.0, "urban_200", 600, 3.0, 1.0, 2.0, 0.7))

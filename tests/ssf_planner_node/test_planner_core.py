@@ -170,3 +170,22 @@ def test_route_projection_and_goal_speed():
     assert route.speed_limit(np.array([0.0, 20.0]), 10.0, 1.5) == pytest.approx([np.sqrt(60.0), 0.0])
     with pytest.raises(ConfigError):
         Route(np.array([[1.0, 1.0], [1.0, 1.0]]))
+
+
+def test_latency_compensation_carries_the_state_forward_by_the_commands_sent():
+    from ssf_planner_node.core.frames import carried_forward
+    from ssf_planner_node.core.models import Command
+    from ssf_planner_node.core.planner import VehicleState
+
+    second = 1_000_000_000
+    start = VehicleState(10 * second, 0.0, 0.0, 0.0, 5.0)
+    cruising = carried_forward(start, [(9 * second, Command(5.0, 0.0))], 10 * second + second // 2, 3.0, 6.0)
+    assert (cruising.stamp_ns, cruising.x, cruising.y, cruising.speed) == pytest.approx((10.5 * second, 2.5, 0.0, 5.0))
+    turning = carried_forward(start, [(9 * second, Command(5.0, 0.2))], 10 * second + second // 2, 3.0, 6.0)
+    assert turning.yaw == pytest.approx(0.1) and turning.y > 0.0
+    standing = VehicleState(10 * second, 0.0, 0.0, 0.0, 0.0)
+    # the old command holds until the new one is sent; speed follows within the acceleration limit
+    moving = carried_forward(standing, [(9 * second, Command(0.0, 0.0)), (10 * second + second // 2, Command(10.0, 0.0))],
+                             11 * second + second // 2, 3.0, 6.0)
+    assert moving.speed == pytest.approx(3.0) and moving.x == pytest.approx(1.5, abs=0.05)
+    assert carried_forward(start, [], start.stamp_ns - 1, 3.0, 6.0) == start  # nothing to carry into the past

@@ -88,6 +88,8 @@ class PlannerConfig(Section):
     corridor_right: float = Field(3.5, gt=0.0, description="... and right of it (m): the road the route runs along")
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
     stale_after_s: float = Field(0.5, gt=0.0, description="obstacles (or odometry) older than this are stale")
+    max_latency_s: float = Field(1.0, ge=0.0, description="odometry up to this much older than now is carried forward "
+                                 "to now by the commands sent since (latency compensation); 0: plan from its stamp")
     vehicle: VehicleConfig = VehicleConfig()
     weights: WeightsConfig = WeightsConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
