@@ -213,6 +213,15 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "plan", "--json", bad_output(d, f)],
     ),
     "train flow": lambda d, f: ["train", "flow", "--data", str(f / "no_pairs"), "--out", str(f / "w.pt")],
+    "train seg": one_of(
+        lambda d, f: ["train", "seg", "--data", str(f / "no_pairs"), "--out", str(f / "w.pt")],
+        lambda d, f: ["train", "seg", "--data", str(f), "--out", bad_output(d, f)],
+        lambda d, f: ["train", "seg", "--data", str(f), "--out", str(f / "w.pt"), "-p", d(bad_overrides())],
+    ),
+    "train seg-flow": one_of(
+        lambda d, f: ["train", "seg-flow", "--data", str(f / "no_pairs")],
+        lambda d, f: ["train", "seg-flow", "--data", str(f), "--estimator", d(st.sampled_from(["nope", "", "rigid2"]))],
+    ),
     "eval flow": lambda d, f: ["eval", "flow", "--scenario", hostile_yaml_file(d, f), "--frames", "1"],
     "odom run": one_of(
         lambda d, f: ["odom", "run", odom_folder(d, f), "--out", str(f / "o"), "--method", "points"],
