@@ -177,8 +177,7 @@ class PlannerNode(Node):
         age = self.get_clock().now_s() - self.last_odometry_s
         if age > self.config.stale_after_s:
             self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s): braking")
-            slowed = max(self.last_command.linear - self.config.vehicle.max_decel * self.config.control_period, 0.0)
-            self._publish(Command(slowed, 0.0))
+            self._publish(braking_on_the_arc(self.last_command, self.config.vehicle.max_decel * self.config.control_period))
 
     def _publish(self, command: Command) -> None:
         self.last_command = command
@@ -204,6 +203,14 @@ class PlannerNode(Node):
         if stats.total:
             self.get_logger().info(f"plan: {stats.total} ticks, {stats.fallbacks} fallbacks "
                                    f"({dict(stats.reasons) or 'none'})")
+
+
+def braking_on_the_arc(last: Command, decrement: float) -> Command:
+    """The last command slowed by `decrement`, on the same arc: the car keeps its curvature while it brakes (turning
+    straight in a bend would leave the lane)."""
+    slowed = max(last.linear - decrement, 0.0)
+    curvature = last.angular / last.linear if abs(last.linear) > 1e-3 else 0.0
+    return Command(slowed, curvature * slowed)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -189,3 +189,4 @@ def test_latency_compensation_carries_the_state_forward_by_the_commands_sent():
                              11 * second + second // 2, 3.0, 6.0)
     assert moving.speed == pytest.approx(3.0) and moving.x == pytest.approx(1.5, abs=0.05)
     assert carried_forward(start, [], start.stamp_ns - 1, 3.0, 6.0) == start  # nothing to carry into the past
+

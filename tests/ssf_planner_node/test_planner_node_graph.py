@@ -123,3 +123,12 @@ def test_world_frame_odometry_is_anchored_at_its_first_pose(graph):
     assert state[:3, 3] == pytest.approx([1.0, 0.0, 0.0], abs=1e-9)  # 1 m along the route from its origin
     assert all(command.linear.x > 5.0 and abs(command.angular.z) < 0.05 for command in commands)  # on its way
     assert "obstacles" not in node.said and "frames" not in node.said
+
+
+def test_braking_without_odometry_keeps_the_arc():
+    from ssf_planner_node.core.models import Command
+    from ssf_planner_node.node import braking_on_the_arc
+
+    slowed = braking_on_the_arc(Command(8.0, 0.4), 0.6)
+    assert slowed.linear == pytest.approx(7.4) and slowed.angular / slowed.linear == pytest.approx(0.05)
+    assert braking_on_the_arc(Command(0.3, 0.1), 0.6) == Command(0.0, 0.0)
