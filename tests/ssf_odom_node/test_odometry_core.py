@@ -132,6 +132,22 @@ def test_a_gap_keeps_the_constant_velocity_prediction():
     assert after_gap.predicted_by == "flow"
 
 
+def test_skipped_scans_follow_the_flows_motion_rate():
+    """Only every third scan reaches the odometry (as in a busy graph): from the very first gap, the flow's own
+    motion rate carries each scan to the next, not a velocity it has had no chance to measure yet."""
+    config = OdomConfig(refine_gates=(0.3,), search_gates=(0.3,), ssf_range=100.0)  # no room to search
+    odometry = make_odometry("ssf", config)
+    world, moving = street(4, moved=False)
+    world = world[~moving]
+    scan = lambda index: transform_points(invert(make_pose(0.5 * index)), world)
+    for index in (0, 3, 6, 9):
+        points = scan(index)
+        step = odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points,
+                                       np.zeros(len(points), np.float32)))
+        assert step.pose[0, 3] == pytest.approx(0.5 * index, abs=0.03)
+        assert step.predicted_by in ("start", "flow")
+
+
 def test_inputs_are_checked():
     odometry = make_odometry("ssf")
     points = np.zeros((10, 3), np.float32)

@@ -163,17 +163,19 @@ class Odometry:
         return points, flow, dynamic
 
     def predict(self, stamp_ns: int) -> tuple[np.ndarray | None, np.ndarray]:
-        """The pose of a new scan by the flow's motion (covering one scan period, constant velocity beyond it; None
-        without flow) and by constant velocity alone."""
+        """The pose of a new scan by the flow's motion (over one scan period; when scans were skipped, the flow's motion
+        rate carried on; None without flow) and by constant velocity alone."""
         if self.stamp_ns is None:
             return None, np.eye(4)
         elapsed = self.elapsed(stamp_ns)
         by_velocity = self.pose @ exp_se3(self.velocity * elapsed)
         if self.method is OdomMethod.POINTS or self.next_motion is None:
             return None, by_velocity
-        beyond = elapsed - self.config.scan_period
-        extra = exp_se3(self.velocity * beyond) if beyond > 0.5 * self.config.scan_period else np.eye(4)
-        return self.pose @ invert(self.next_motion) @ extra, by_velocity
+        if elapsed < 1.5 * self.config.scan_period:
+            return self.pose @ invert(self.next_motion), by_velocity
+        # scans were skipped: the flow's own motion rate, measured at the last scan, carries on to this one
+        per_scan = log_se3(invert(self.next_motion))
+        return self.pose @ exp_se3(per_scan * (elapsed / self.config.scan_period)), by_velocity
 
     def agree(self, by_flow: np.ndarray, by_velocity: np.ndarray) -> bool:
         """Whether the flow's prediction lies within the prior gate of the constant-velocity one."""
