@@ -1,6 +1,7 @@
 """ssf_fusion_node: the flow ⇄ segmentation loop across processes, and the obstacles of each converged scan.
 
-/ssf/flow + /ssf/mask -> /ssf/mask_hint (next iteration) or, once converged: /ssf/semantic_flow and /ssf/obstacles;
+/ssf/flow + /ssf/mask -> /ssf/mask_hint (next iteration) or, once converged: /ssf/semantic_flow and /ssf/obstacles
+(the moving instances with their velocities, and the still part of the scan as boxes standing still);
 /ssf/fusion_state every iteration."""
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, LoopStatus
-from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles
+from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles, stack, still_clusters
 
 
 class FusionNodeConfig(Section):
@@ -98,6 +99,10 @@ class FusionNode(Node):
         ego = weighted_kabsch(result.points, result.points + result.flow, static)
         obstacles = extract_obstacles(result.points, result.flow, result.segmentation, ego, self.dt, result.stamp_ns,
                                       result.frame_id, self.config.obstacles)
+        if self.config.obstacles.still.enabled:  # what stands still is in the way too: parked cars, structure
+            still = result.points[~result.segmentation.dynamic]
+            obstacles = stack(obstacles, still_clusters(still, result.stamp_ns, result.frame_id,
+                                                        self.config.obstacles.still).boxes)
         self.obstacle_pub.publish(obstacles_to_msg(obstacles))
         self.marker_pub.publish(self.markers.obstacles(obstacles))
 

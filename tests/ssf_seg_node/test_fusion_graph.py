@@ -91,8 +91,10 @@ def test_the_node_loop_converges_on_replayed_scans(graph, capfd):
     assert (result.segmentation.dynamic == in_process.dynamic).mean() > 0.99
     assert (result.segmentation.dynamic == pair.dynamic1).mean() > 0.95 and result.segmentation.num_instances >= 1
     found = obstacles_from_msg(obstacles[0])
-    assert found.frame_id == "lidar" and len(found) == result.segmentation.num_instances
-    assert all(np.linalg.norm(found.velocities[:, :2], axis=1) > 0.5)  # moving objects, ego motion removed
+    moving, still = found.take(np.flatnonzero(found.ids > 0)), found.take(np.flatnonzero(found.ids == 0))
+    assert found.frame_id == "lidar" and len(moving) == result.segmentation.num_instances
+    assert all(np.linalg.norm(moving.velocities[:, :2], axis=1) > 0.5)  # moving objects, ego motion removed
+    assert len(still) > 0 and not still.velocities.any()  # the street's still structure, standing still
     assert [state.iteration for state in states] == list(range(len(states))) and states[-1].converged
     assert wait_until(lambda: len(markers) == 1)  # the same obstacles as boxes for RViz / Foxglove
     boxes = [m for m in markers[0].markers if m.ns == "obstacles"]

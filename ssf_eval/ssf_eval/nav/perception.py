@@ -8,21 +8,16 @@ knows every agent (moving or not; the simulator's structure stays off the road).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import NamedTuple, Protocol
+from typing import Protocol
 
 import numpy as np
 from pydantic import Field
 
 from sim_bridge.ros_messages import agent_obstacles
 from sim_bridge.simulator import Frame
-from ssf_common.config import Section
 from ssf_common.errors import ConfigError
-from ssf_common.geometry.boxes import bounding_box
-from ssf_common.geometry.clustering import dbscan
-from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.labels import label_counts
-from ssf_common.geometry.sampling import voxel_indices
-from ssf_common.records import ObstacleKind, Obstacles
+from ssf_common.records import Obstacles
+from ssf_seg_node.core.obstacles import StillClusters, StillConfig, still_clusters
 
 ODOM_FRAME = "odom"
 
@@ -46,18 +41,9 @@ class Perception(Protocol):
         """Obstacles seen in this frame (stamped when they were seen)."""
 
 
-class DbscanConfig(Section):
-    """LiDAR clustering as common stacks do it (rda_ros: DBSCAN, minimum-area rectangles)."""
+class DbscanConfig(StillConfig):
+    """LiDAR clustering as common stacks do it (rda_ros: DBSCAN, minimum-area rectangles), and tracking."""
 
-    max_range: float = Field(40.0, gt=0.0, description="points farther from the sensor are ignored (m)")
-    cell: float = Field(0.2, gt=0.0, description="one point per ground-plane cell of this edge (m) before clustering")
-    ground_cell: float = Field(2.0, gt=0.0, description="grid cell of the ground height estimate (m)")
-    min_height: float = Field(0.3, ge=0.0, description="points lower above the ground are ground (m)")
-    max_height: float = Field(2.5, gt=0.0, description="points higher above the ground are ignored: canopy, roofs (m)")
-    eps: float = Field(0.5, gt=0.0, description="DBSCAN neighbourhood on the ground plane (m)")
-    min_samples: int = Field(5, ge=1, description="DBSCAN core point threshold")
-    min_points: int = Field(5, ge=1, description="smaller clusters are dropped")
-    vehicle_length: float = Field(2.2, gt=0.0, description="boxes at least this long are vehicles, else pedestrians")
     gate: float = Field(1.5, gt=0.0, description="tracking: a cluster continues the track whose predicted centre is "
                         "nearest, within this distance (m)")
     smoothing: float = Field(0.5, gt=0.0, le=1.0, description="tracking: weight of the newest velocity measurement")
@@ -136,49 +122,9 @@ class DbscanPerception:
         return np.where(ages[:, None] >= 2, velocities, 0.0), ids
 
 
-class Clusters(NamedTuple):
-    """DBSCAN clusters of a scan as still boxes (odometry frame), and the mean of each cluster's points (what
-    tracking follows: steadier than the rectangle's centre as the view changes)."""
-
-    boxes: Obstacles
-    means: np.ndarray  # (M, 2)
-
-
-def cluster_boxes(points: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int, config: DbscanConfig) -> Clusters:
+def cluster_boxes(points: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int, config: DbscanConfig) -> StillClusters:
     """The DBSCAN clusters of a scan's points (sensor frame) above the ground, as boxes in the odometry frame."""
-    points = clustered_points(points, config)
-    odom = points @ lidar_pose[:3, :3].T + lidar_pose[:3, 3]
-    labels, count = dbscan(odom[:, :2], config.eps, config.min_samples)
-    sizes_of = label_counts(labels[labels >= 0], count)
-    keep = np.flatnonzero(sizes_of >= config.min_points)
-    order = np.argsort(labels, kind="stable")
-    members = np.split(odom[order], np.searchsorted(labels[order], np.arange(count + 1)))[1:-1]
-    boxes = [bounding_box(members[k]) for k in keep]
-    sizes = np.array([box.size for box in boxes]).reshape(-1, 3)
-    kinds = np.where(sizes[:, 0] >= config.vehicle_length, ObstacleKind.VEHICLE, ObstacleKind.PEDESTRIAN)
-    means = np.array([members[k][:, :2].mean(axis=0) for k in keep]).reshape(-1, 2)
-    boxes_found = Obstacles(stamp_ns, ODOM_FRAME, ids=np.zeros(len(keep), np.int64), kinds=kinds,
-                            centres=np.array([box.centre for box in boxes]).reshape(-1, 3), sizes=sizes,
-                            yaws=np.array([box.yaw for box in boxes]), velocities=np.zeros((len(keep), 3)),
-                            point_counts=sizes_of[keep])
-    return Clusters(boxes_found, means)
-
-
-def stack(first: Obstacles, second: Obstacles) -> Obstacles:
-    """The obstacles of both (same frame), first's stamp."""
-    columns = ("ids", "kinds", "centres", "sizes", "yaws", "velocities", "velocity_covariances", "yaw_rates",
-               "point_counts", "confidences")
-    return replace(first, **{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in columns})
-
-
-def clustered_points(points: np.ndarray, config: DbscanConfig) -> np.ndarray:
-    """The scan points DBSCAN looks at: within range, above the ground, below the canopy, one per ground-plane cell
-    (a bird's-eye view, like the 2-D scans rda_ros clusters)."""
-    points = np.asarray(points, dtype=np.float64)
-    points = points[np.hypot(points[:, 0], points[:, 1]) <= config.max_range]
-    height = height_above_ground(points, config.ground_cell)
-    points = points[(height >= config.min_height) & (height <= config.max_height)]
-    return points[voxel_indices(points[:, :2], config.cell)] if len(points) else points
+    return still_clusters(points, stamp_ns, ODOM_FRAME, config, lidar_pose)
 
 
 def match_nearest(predicted: np.ndarray, centres: np.ndarray, gate: float) -> np.ndarray:

@@ -13,9 +13,10 @@ import numpy as np
 from ssf_common.config import build
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
-from ssf_eval.nav.perception import ODOM_FRAME, DbscanConfig, Observation, cluster_boxes, stack
+from ssf_eval.nav.perception import ODOM_FRAME, DbscanConfig, Observation, cluster_boxes
 from ssf_eval.pipeline import Perception, PerceptionConfig, SsfPerception as Pipeline
 from ssf_flow_node.core.estimator import WHOLE_SCAN
+from ssf_seg_node.core.obstacles import stack
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 

@@ -1,14 +1,38 @@
-"""Moving objects as obstacles: an oriented box per dynamic instance, its velocity from the flow, and how sure it is."""
+"""Obstacles of a scan: an oriented box per moving instance with its velocity from the flow and how sure it is, and
+the still part of the scan as boxes standing still (what a planner must not drive into: parked cars, structure)."""
 
 from __future__ import annotations
+
+from dataclasses import replace
+from typing import NamedTuple
 
 import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
-from ssf_common.geometry.boxes import min_area_rectangle
-from ssf_common.geometry.se3 import invert
+from ssf_common.geometry.boxes import bounding_box, min_area_rectangle
+from ssf_common.geometry.clustering import dbscan
+from ssf_common.geometry.ground import height_above_ground
+from ssf_common.geometry.labels import label_counts
+from ssf_common.geometry.sampling import voxel_indices
+from ssf_common.geometry.se3 import invert, transform_points
 from ssf_common.records import ObstacleKind, Obstacles, Segmentation
+
+
+class StillConfig(Section):
+    """The still part of a scan as obstacles: DBSCAN clusters of its points above the ground, as minimum-area boxes
+    with no velocity (what common LiDAR stacks give a planner, rda_ros style)."""
+
+    enabled: bool = Field(True, description="the fusion node publishes still boxes beside the moving obstacles")
+    max_range: float = Field(40.0, gt=0.0, description="points farther from the sensor are ignored (m)")
+    cell: float = Field(0.2, gt=0.0, description="one point per ground-plane cell of this edge (m) before clustering")
+    ground_cell: float = Field(2.0, gt=0.0, description="grid cell of the ground height estimate (m)")
+    min_height: float = Field(0.3, ge=0.0, description="points lower above the ground are ground (m)")
+    max_height: float = Field(2.5, gt=0.0, description="points higher above the ground are ignored: canopy, roofs (m)")
+    eps: float = Field(0.5, gt=0.0, description="DBSCAN neighbourhood on the ground plane (m)")
+    min_samples: int = Field(5, ge=1, description="DBSCAN core point threshold")
+    min_points: int = Field(5, ge=1, description="smaller clusters are dropped")
+    vehicle_length: float = Field(2.2, gt=0.0, description="boxes at least this long are vehicles, else pedestrians")
 
 
 class ObstacleConfig(Section):
@@ -23,6 +47,7 @@ class ObstacleConfig(Section):
                                               "(length, width; m), away from the sensor (its hidden sides)")
     pedestrian_size: tuple[float, float] = Field((0.6, 0.6), description="the same for pedestrians")
     velocity_noise: float = Field(0.05, ge=0.0, description="floor of the velocity standard deviation (m/s)")
+    still: StillConfig = StillConfig()
 
 
 def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentation, ego: np.ndarray, dt: float,
@@ -79,3 +104,51 @@ def grow_away_from_sensor(centre: np.ndarray, sides: np.ndarray, yaw: float, pri
         away = np.sign(axes[axis] @ centre) or 1.0  # the far side along this axis
         shift += away * extra * axes[axis]
     return centre + shift, grown
+
+
+class StillClusters(NamedTuple):
+    """The still clusters of a scan as boxes, and the mean of each cluster's points (steadier than a box's centre as
+    the view changes, for tracking)."""
+
+    boxes: Obstacles
+    means: np.ndarray  # (M, 2)
+
+
+def still_clusters(points: np.ndarray, stamp_ns: int, frame_id: str, config: StillConfig,
+                   to_frame: np.ndarray | None = None) -> StillClusters:
+    """DBSCAN clusters of a scan's points (sensor frame) above the ground as still boxes, in `frame_id`: the sensor
+    frame, or the frame `to_frame` (frame_id <- sensor) moves the points into before they are clustered."""
+    points = clustered_points(points, config)
+    if to_frame is not None:
+        points = transform_points(to_frame, points).astype(np.float64)
+    labels, count = dbscan(points[:, :2], config.eps, config.min_samples)
+    sizes_of = label_counts(labels[labels >= 0], count)
+    keep = np.flatnonzero(sizes_of >= config.min_points)
+    order = np.argsort(labels, kind="stable")
+    members = np.split(points[order], np.searchsorted(labels[order], np.arange(count + 1)))[1:-1]
+    boxes = [bounding_box(members[k]) for k in keep]
+    sizes = np.array([box.size for box in boxes]).reshape(-1, 3)
+    kinds = np.where(sizes[:, 0] >= config.vehicle_length, ObstacleKind.VEHICLE, ObstacleKind.PEDESTRIAN)
+    means = np.array([members[k][:, :2].mean(axis=0) for k in keep]).reshape(-1, 2)
+    found = Obstacles(stamp_ns, frame_id, ids=np.zeros(len(keep), np.int64), kinds=kinds,
+                      centres=np.array([box.centre for box in boxes]).reshape(-1, 3), sizes=sizes,
+                      yaws=np.array([box.yaw for box in boxes]), velocities=np.zeros((len(keep), 3)),
+                      point_counts=sizes_of[keep])
+    return StillClusters(found, means)
+
+
+def clustered_points(points: np.ndarray, config: StillConfig) -> np.ndarray:
+    """The scan points (sensor frame) the clustering looks at: within range, above the ground, below the canopy, one
+    per ground-plane cell (a bird's-eye view, like the 2-D scans rda_ros clusters)."""
+    points = np.asarray(points, dtype=np.float64)[:, :3]
+    points = points[np.hypot(points[:, 0], points[:, 1]) <= config.max_range]
+    height = height_above_ground(points, config.ground_cell)
+    points = points[(height >= config.min_height) & (height <= config.max_height)]
+    return points[voxel_indices(points[:, :2], config.cell)] if len(points) else points
+
+
+def stack(first: Obstacles, second: Obstacles) -> Obstacles:
+    """The obstacles of both (same frame), with the first's stamp."""
+    columns = ("ids", "kinds", "centres", "sizes", "yaws", "velocities", "velocity_covariances", "yaw_rates",
+               "point_counts", "confidences")
+    return replace(first, **{name: np.concatenate([getattr(first, name), getattr(second, name)]) for name in columns})
