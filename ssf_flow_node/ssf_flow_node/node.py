@@ -51,6 +51,7 @@ class FlowNode(Node):
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.estimator = make_estimator(config=self.config, device=device)
         self.scans: collections.deque[Scan] = collections.deque(maxlen=SCAN_HISTORY)
+        self.gap_ns: int | None = None  # the shortest time between consecutive scans seen: the sweep period
         self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
         self.worker = LatestWorker(self._estimate, ("hint", "scan"), self.get_logger(), "flow")
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA)
@@ -70,9 +71,19 @@ class FlowNode(Node):
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
-        if self.scans:
+        if self.scans and self._consecutive(self.scans[-1], scan):
             self.worker.submit("scan", FlowJob(self.scans[-1], scan, None, 0))
         self.scans.append(scan)
+
+    def _consecutive(self, previous: Scan, scan: Scan) -> bool:
+        """Whether two scans are consecutive sweeps: a flow across a lost scan would cover twice the time every stage
+        after this one assumes (velocities, odometry), so such a pair is skipped and counted."""
+        gap = scan.stamp_ns - previous.stamp_ns
+        self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
+        if gap <= 1.5 * self.gap_ns:
+            return True
+        self.stats.count("pairs_skipped_after_a_lost_scan")
+        return False
 
     def on_mask_hint(self, msg: Any) -> None:
         """Re-estimate the flow of the scan the hint refers to, conditioned on its mask."""
@@ -109,7 +120,8 @@ class FlowNode(Node):
         median = float(np.median(self._compute_ms))
         self.get_logger().info(
             f"flow: {self.worker.processed['scan']} scans, {self.worker.processed['hint']} mask hints, "
-            f"median {median:.1f} ms; dropped {self.worker.dropped['scan']} scans that arrived while busy"
+            f"median {median:.1f} ms; dropped {self.worker.dropped['scan']} scans that arrived while busy, "
+            f"{self.stats.counts['pairs_skipped_after_a_lost_scan']} pairs across a lost scan"
         )
         self._compute_ms.clear()
 

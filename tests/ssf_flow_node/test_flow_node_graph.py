@@ -110,3 +110,15 @@ def test_mask_hint_is_answered_with_its_iteration(graph):
     hints.publish(bad_hint)  # wrong point count: dropped with one line, nothing published
     time.sleep(0.5)
     assert len(received) == 2
+
+
+def test_no_flow_across_a_lost_scan(graph):
+    flow_node, scans, _hints, received = graph
+    points = scene()
+    for index in (10, 11, 13, 14):  # scan 12 was lost on the way
+        scans.publish(xyz_to_cloud(points - index * SHIFT, messages.header(index * 100_000_000, "lidar")))
+        time.sleep(0.3)
+    assert wait_until(lambda: len(received) == 2)
+    time.sleep(0.5)
+    assert [messages.stamp_ns(msg.header.stamp) for msg in received] == [1_000_000_000, 1_300_000_000]
+    assert flow_node.stats.counts["pairs_skipped_after_a_lost_scan"] == 1
