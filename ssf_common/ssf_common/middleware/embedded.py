@@ -80,6 +80,7 @@ class Participant:
         """Delete the participant and everything it owns."""
         with cls._lock:
             instance, cls._instance = cls._instance, None
+        DataWatcher.shutdown()
         if instance is not None:
             instance._topics.clear()
             instance._publications = None
@@ -226,13 +227,99 @@ class EmbeddedPublisher:
         self._writer = None
 
 
+class DataWatcher:
+    """One thread per process that waits on a Cyclone waitset until a reader has data, then tells its node.
+
+    Cyclone never calls into Python here (no listeners): a listener runs on Cyclone's own threads and needs the
+    interpreter lock, which cyclonedds-python keeps held through dds_write; a reliable writer waiting for
+    acknowledgements could then wait for a receive thread that waits for the lock (seen as a node's worker stuck in a
+    write). A reader's condition leaves the waitset once it has fired and returns when its node has taken the data.
+    """
+
+    _instance: "DataWatcher | None" = None
+    _lock = threading.Lock()
+
+    def __init__(self, participant: Participant) -> None:
+        from cyclonedds.core import GuardCondition, WaitSet
+
+        self._waitset = WaitSet(participant.dp)
+        self._wake = GuardCondition(participant.dp)  # (re)attached conditions are looked at at once
+        self._waitset.attach(self._wake)
+        self._watched: dict[int, tuple[Any, Callable[[], None]]] = {}
+        self._guard = threading.Lock()
+        self._stopped = False
+        self._thread = threading.Thread(target=self._run, name="dds-data-watcher", daemon=True)
+        self._thread.start()
+
+    @classmethod
+    def get(cls) -> "DataWatcher":
+        """The process-wide watcher."""
+        with cls._lock:
+            if cls._instance is None:
+                cls._instance = DataWatcher(Participant.get())
+            return cls._instance
+
+    def watch(self, condition: Any, on_data: Callable[[], None]) -> None:
+        """Call on_data (once) when the condition triggers."""
+        with self._guard:
+            if self._stopped:
+                return
+            self._waitset.attach(condition)
+            self._watched[condition._ref] = (condition, on_data)
+            self._wake.set(True)
+
+    def forget(self, condition: Any) -> None:
+        """Stop watching a condition."""
+        with self._guard:
+            if self._watched.pop(condition._ref, None) is not None and not self._stopped:
+                self._waitset.detach(condition)
+
+    def close(self) -> None:
+        """Stop the thread and let go of every condition and of the waitset."""
+        with self._guard:
+            if self._stopped:
+                return
+            self._stopped = True
+        self._wake.set(True)
+        self._thread.join(timeout=2.0)
+        with self._guard:
+            for condition, _on_data in self._watched.values():
+                self._waitset.detach(condition)
+            self._watched.clear()
+            self._waitset = self._wake = None  # they hold the participant, which must go for its readers to leave
+
+    @classmethod
+    def shutdown(cls) -> None:
+        """Close the process's watcher, if any (before the participant is deleted)."""
+        with cls._lock:
+            instance, cls._instance = cls._instance, None
+        if instance is not None:
+            instance.close()
+
+    def _run(self) -> None:
+        from cyclonedds.util import duration
+
+        while True:
+            self._waitset.wait(duration(seconds=1))  # a ctypes call: the interpreter lock is free meanwhile
+            with self._guard:
+                if self._stopped:
+                    return
+                self._wake.set(False)
+                fired = [(condition, on_data) for condition, on_data in self._watched.values() if condition.triggered]
+                for condition, _on_data in fired:
+                    self._waitset.detach(condition)
+                    del self._watched[condition._ref]
+            for _condition, on_data in fired:
+                on_data()
+
+
 class EmbeddedSubscription:
     """Takes raw CDR samples of one topic when the executor asks it to."""
 
     def __init__(
         self, type_name: str, topic: str, qos: QoS, on_raw: Callable[[bytes], None], notify: Callable[[Any], None]
     ) -> None:
-        from cyclonedds.core import InstanceState, Listener, SampleState, ViewState
+        from cyclonedds.core import InstanceState, ReadCondition, SampleState, ViewState
         from cyclonedds.sub import DataReader
 
         participant = Participant.get()
@@ -240,27 +327,32 @@ class EmbeddedSubscription:
         self.topic_name = topic
         self._on_raw = on_raw
         self._mask = SampleState.Any | ViewState.Any | InstanceState.Any
-        listener = Listener(on_data_available=lambda _reader: notify(self))
-        self._reader = DataReader(
-            participant.dp, participant.topic(topic, type_name), dds_qos(qos, type_name), listener=listener
-        )
+        self._reader = DataReader(participant.dp, participant.topic(topic, type_name), dds_qos(qos, type_name))
+        self._has_data = ReadCondition(self._reader, self._mask)
+        self._notify = lambda: notify(self)
+        self._watcher = DataWatcher.get()
+        self._watcher.watch(self._has_data, self._notify)
 
     def drain(self) -> None:
-        """Take every waiting sample and hand each valid one to the callback."""
+        """Take every waiting sample and hand each valid one to the callback; then wait for more."""
         from cyclonedds._clayer import ddspy_take
 
         reader = self._reader
         if reader is None:
             return
-        while True:
-            samples = ddspy_take(reader._ref, self._mask, _TAKE_BATCH)
-            if isinstance(samples, int) or not samples:
-                return
-            for data, info in samples:
-                if info.valid_data:  # invalid samples only announce a writer leaving
-                    self._on_raw(data)
-            if len(samples) < _TAKE_BATCH:
-                return
+        try:
+            while True:
+                samples = ddspy_take(reader._ref, self._mask, _TAKE_BATCH)
+                if isinstance(samples, int) or not samples:
+                    return
+                for data, info in samples:
+                    if info.valid_data:  # invalid samples only announce a writer leaving
+                        self._on_raw(data)
+                if len(samples) < _TAKE_BATCH:
+                    return
+        finally:
+            if self._reader is not None and self._has_data is not None:
+                self._watcher.watch(self._has_data, self._notify)
 
     @property
     def guid(self) -> bytes:
@@ -273,7 +365,8 @@ class EmbeddedSubscription:
 
     def destroy(self) -> None:
         """Delete the reader."""
-        self._reader = None
+        self._watcher.forget(self._has_data)
+        self._has_data = self._reader = None  # the condition holds the reader
 
 
 class EmbeddedBackend:
