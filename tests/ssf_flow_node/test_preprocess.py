@@ -95,3 +95,29 @@ def test_bad_scans_and_masks_are_one_line_errors():
     assert check_mask(np.ones((5, 1), bool), 5).dtype == np.float32
     with pytest.raises(DataError, match="no points"):
         downsample(np.full((10, 3), 500.0, np.float32), PreprocessConfig(), np.random.default_rng(0))
+
+
+
+def test_scan_cache_prepares_each_scan_of_a_stream_once(monkeypatch):
+    """In a stream, scan t+1 of one pair is scan t of the next: it is split and sampled once, the same way in both."""
+    import ssf_flow_node.core.base as base
+
+    original, calls = base.prepare_scan, []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    rng = np.random.default_rng(3)
+    scans = [rng.uniform(-30, 30, (5000, 3)).astype(np.float32) for _ in range(4)]
+    config = PreprocessConfig(points=1000, remove_ground=True, max_range=100.0)
+    monkeypatch.setattr(base, "prepare_scan", counted)
+    cache = base.ScanCache(config)
+    pairs = [base.prepare(a, b, None, config, cache) for a, b in zip(scans, scans[1:])]
+    assert len(calls) == len(scans)
+    for earlier, later in zip(pairs, pairs[1:]):
+        assert np.array_equal(earlier.sample2.indices, later.sample1.indices)
+        assert np.array_equal(earlier.sample2.ground, later.sample1.ground)
+    uncached = base.prepare(scans[1], scans[2], None, config)
+    assert np.array_equal(uncached.sample1.indices, pairs[1].sample1.indices)  # the cache changes the work, not the answer
+    assert np.array_equal(uncached.height1, pairs[1].height1)

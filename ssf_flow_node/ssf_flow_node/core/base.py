@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+import collections
+import hashlib
 from dataclasses import dataclass
 from typing import NamedTuple, Protocol
 
 import numpy as np
 
+from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.se3 import rigid_flow
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask, check_scan, downsample, propagate_motion
 
@@ -37,15 +40,69 @@ class PreparedPair(NamedTuple):
     sample1: Sample
     sample2: Sample
     mask: np.ndarray | None
+    height1: np.ndarray | None = None  # where the ground is split: each point of scan t's height above the ground
 
 
-def prepare(pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None, config: PreprocessConfig) -> PreparedPair:
-    """Validate inputs and downsample both scans with the shared pre-processing."""
-    xyz1, xyz2 = check_scan(pc1, "scan t"), check_scan(pc2, "scan t+1")
-    mask = check_mask(mask, xyz1.shape[0])
-    rng = np.random.default_rng(config.seed)
-    sample1, sample2 = downsample(xyz1, config, rng), downsample(xyz2, config, rng)
-    return PreparedPair(xyz1, xyz2, sample1, sample2, None if mask is None else mask[sample1.indices])
+class PreparedScan(NamedTuple):
+    """One validated scan, its sample, and (where the ground is split) each point's height above the local ground."""
+
+    xyz: np.ndarray
+    sample: Sample
+    height: np.ndarray | None
+
+
+def fingerprint(*clouds: np.ndarray) -> bytes:
+    """A short digest that tells one scan (or pair of scans) from another: shapes and a stride of their coordinates."""
+    digest = hashlib.blake2b(digest_size=16)
+    for cloud in clouds:
+        array = np.asarray(cloud)
+        digest.update(repr(array.shape).encode())
+        digest.update(np.ascontiguousarray(array[:: max(1, len(array) // 1024)]).tobytes())
+    return digest.digest()
+
+
+def prepare_scan(points: np.ndarray, name: str, config: PreprocessConfig, key: bytes | None = None) -> PreparedScan:
+    """Validate a scan and sample it; the sampling is seeded by the config's seed and the scan itself, so a scan is
+    sampled the same way whichever pair it belongs to."""
+    xyz = check_scan(points, name)
+    key = fingerprint(xyz) if key is None else key
+    height = height_above_ground(xyz, config.ground_cell) if config.remove_ground else None
+    rng = np.random.default_rng([config.seed, int.from_bytes(key[:8], "little")])
+    return PreparedScan(xyz, downsample(xyz, config, rng, height), height)
+
+
+class ScanCache:
+    """The last few scans prepared with one config, by content: in a stream, scan t+1 of one pair is scan t of the
+    next, and the fusion loop asks for the same pair again, so each scan is validated, split and sampled once."""
+
+    def __init__(self, config: PreprocessConfig, size: int = 3) -> None:
+        self.config = config
+        self.size = size
+        self.scans: collections.OrderedDict[bytes, PreparedScan] = collections.OrderedDict()
+
+    def get(self, points: np.ndarray, name: str) -> PreparedScan:
+        """The prepared scan, from the cache when this scan was prepared recently."""
+        key = fingerprint(np.asarray(points))
+        if key in self.scans:
+            self.scans.move_to_end(key)
+            return self.scans[key]
+        scan = self.scans[key] = prepare_scan(points, name, self.config, key)
+        while len(self.scans) > self.size:
+            self.scans.popitem(last=False)
+        return scan
+
+
+def prepare(pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None, config: PreprocessConfig,
+            cache: ScanCache | None = None) -> PreparedPair:
+    """Validate inputs and downsample both scans with the shared pre-processing (through `cache`, made with the same
+    config, when given)."""
+    if cache is not None:
+        scan1, scan2 = cache.get(pc1, "scan t"), cache.get(pc2, "scan t+1")
+    else:
+        scan1, scan2 = prepare_scan(pc1, "scan t", config), prepare_scan(pc2, "scan t+1", config)
+    mask = check_mask(mask, scan1.xyz.shape[0])
+    return PreparedPair(scan1.xyz, scan2.xyz, scan1.sample, scan2.sample,
+                        None if mask is None else mask[scan1.sample.indices], scan1.height)
 
 
 def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, config: PreprocessConfig,

@@ -82,12 +82,15 @@ def crop(points: np.ndarray, config: PreprocessConfig) -> np.ndarray:
     return np.flatnonzero((distance >= config.min_range) & (distance <= config.max_range))
 
 
-def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Generator) -> Sample:
-    """Crop and reduce a scan to its point budget, remembering where each came from."""
+def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Generator,
+               height: np.ndarray | None = None) -> Sample:
+    """Crop and reduce a scan to its point budget, remembering where each came from (`height`: each point's height
+    above the ground of the whole scan, when already known)."""
     candidates = crop(points, config)
     ground = None
     if config.remove_ground and candidates.size:
-        flat = ground_mask(points[candidates], config.ground_cell, config.ground_height)
+        flat = (ground_mask(points[candidates], config.ground_cell, config.ground_height) if height is None
+                else height[candidates] < config.ground_height)
         ground = candidates[flat]
         ground = ground[rng.permutation(ground.size)[: config.ego_ground_points]]
         candidates = candidates[~flat]

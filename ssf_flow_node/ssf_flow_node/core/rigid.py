@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -16,7 +15,7 @@ from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
 from ssf_common.geometry.se3 import transform_points, yaw_translate
-from ssf_flow_node.core.base import FlowResult, PreparedPair, finish, prepare
+from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
 from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
 
@@ -121,6 +120,7 @@ class RigidFlowEstimator:
         self.registration = registration
         self.config = config
         self.state: PairState | None = None
+        self.scans = ScanCache(preprocess)
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
         """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration, and clusters the
@@ -162,21 +162,23 @@ class RigidFlowEstimator:
         key = fingerprint(pc1, pc2)
         if self.state is not None and self.state.key == key:
             return self.state
-        pair = prepare(pc1, pc2, None, self.preprocess)
+        pair = prepare(pc1, pc2, None, self.preprocess, self.scans)
         points1, points2 = pair.sample1.points, pair.sample2.points
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
         matcher = ScanMatcher(target, self.registration)
         order = np.random.default_rng(self.registration.seed).permutation(source.shape[0])
-        above1 = height_above_ground(points1, self.preprocess.ground_cell) >= self.preprocess.ground_height
-        above2 = height_above_ground(points2, self.preprocess.ground_cell) >= self.preprocess.ground_height
-        if self.preprocess.remove_ground or not shows_ground(matcher, ~above2):
-            above1, above2 = np.ones_like(above1), np.ones_like(above2)  # the lowest points are objects' bottoms
+        above1, above2 = np.ones(points1.shape[0], bool), np.ones(points2.shape[0], bool)
+        if not self.preprocess.remove_ground:  # where the ground was split off, the lowest points are objects' bottoms
+            low2 = height_above_ground(points2, self.preprocess.ground_cell) < self.preprocess.ground_height
+            if shows_ground(matcher, low2):
+                above1 = height_above_ground(points1, self.preprocess.ground_cell) >= self.preprocess.ground_height
+                above2 = ~low2
         normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
         every = surfaces_of(points2, normals)
         above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
         ground1 = None
         if self.preprocess.remove_ground:  # whole scans: points on the ground never take an object's motion
-            ground1 = height_above_ground(pair.pc1, self.preprocess.ground_cell) < self.config.ground_clearance
+            ground1 = pair.height1 < self.config.ground_clearance
         self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1)
         return self.state
 
@@ -227,15 +229,6 @@ def surfaces_of(points: np.ndarray, normals: np.ndarray | None) -> Surfaces:
     rough = gap[:, 1] if normals is None else np.abs(np.einsum("ij,ij->i", points[index[:, 1]] - points, normals))
     return Surfaces(points, normals, tree, rough)
 
-
-def fingerprint(pc1: np.ndarray, pc2: np.ndarray) -> bytes:
-    """A short digest that tells one scan pair from another (shapes and a stride of their coordinates)."""
-    digest = hashlib.blake2b(digest_size=16)
-    for cloud in (pc1, pc2):
-        array = np.asarray(cloud)
-        digest.update(repr(array.shape).encode())
-        digest.update(np.ascontiguousarray(array[:: max(1, len(array) // 1024)]).tobytes())
-    return digest.digest()
 
 def joint_clusters(points1: np.ndarray, points2: np.ndarray, voxel: float, groups1: np.ndarray | None = None) -> Clusters:
     """Connected components of the occupied voxels of both (ego-compensated) scans together; points of scan t in
