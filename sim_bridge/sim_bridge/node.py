@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import collections
+
 import time
 from enum import Enum
 from typing import Any
@@ -57,6 +59,8 @@ class SimNodeConfig(Section):
     render: str = Field("", description="draw the episode top-down to this PNG when it ends")
     markers: bool = True
     exit_when_done: bool = True
+    episodes: int = Field(1, ge=0, description="episodes driven back to back, each with the next seed and its clock "
+                          "starting again at zero (the graph sees a restarted stream); 0: until stopped")
     wait_for_subscribers: int = Field(0, ge=0, description="hold the first scan until /lidar/points has this many readers")
     wait_timeout_s: float = Field(20.0, gt=0, description="give up waiting for readers after this long")
 
@@ -71,9 +75,10 @@ class SimBridgeNode(Node):
             if path:
                 check_writable(path, what)  # before the episode, not after it
         overrides = {**overrides_from_pairs(self.config.overrides, "overrides"), **self._scenario_parameters()}
-        scenario = load_scenario(self.config.scenario, overrides)
-        self.sim = Simulator(scenario, None if self.config.seed < 0 else self.config.seed)
-        self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
+        self.scenario = load_scenario(self.config.scenario, overrides)
+        self.episode = 0
+        self.outcomes: collections.Counter[str] = collections.Counter()
+        self._new_episode(None if self.config.seed < 0 else self.config.seed)
         self.command = VelocityCommand()
         self.fresh_command = False
         self.published_at = 0.0
@@ -92,18 +97,27 @@ class SimBridgeNode(Node):
         self.pub_episode = self.create_publisher("ssf_interfaces/msg/EpisodeResult", topics.EPISODE, QOS_LATCHED)
         self.pub_route = self.create_publisher("nav_msgs/msg/Path", topics.ROUTE, QOS_LATCHED)
         self.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_cmd_vel, QOS_DEFAULT)
-        self.time_limit = self.config.duration_s or scenario.episode.time_limit
+        self.time_limit = self.config.duration_s or self.scenario.episode.time_limit
         self.started = False
         self.readers_since: float | None = None
         self.created_at = time.monotonic()
-        first = self.sim.reset()
-        self.pub_route.publish(ros_messages.route_path(self.sim.route_waypoints(), first.base_pose, first.stamp_ns))
+        self._publish_route()
         self.create_timer(self._tick_period(), self.tick)
         advertise(self, self.stats)
         self.get_logger().info(
-            f"scenario '{self.config.scenario}' seed {self.sim.seed}: {scenario.agents.count} agents, "
+            f"scenario '{self.config.scenario}' seed {self.sim.seed}: {self.scenario.agents.count} agents, "
             f"route {self.sim.world.route_length:.0f} m, {self.config.mode.value}, driver {self.config.driver.value}"
         )
+
+    def _new_episode(self, seed: int | None) -> None:
+        """A fresh simulator (its clock at zero) and the follower that drives it, if any."""
+        self.sim = Simulator(self.scenario, seed)
+        self.sim.reset()
+        self.follower = self.sim.follower() if self.config.driver is Driver.FOLLOW else None
+
+    def _publish_route(self) -> None:
+        first = self.sim.frame
+        self.pub_route.publish(ros_messages.route_path(self.sim.route_waypoints(), first.base_pose, first.stamp_ns))
 
     def _scenario_parameters(self) -> dict[str, Any]:
         """Scenario settings given as parameters by their dotted names (-p lidar.model:=vlp16), over `overrides`."""
@@ -190,10 +204,24 @@ class SimBridgeNode(Node):
         )
 
     def _finish(self, frame: Frame) -> None:
+        self.episode += 1
+        self.outcomes[frame.status.outcome.value] += 1
+        self.stats.count(f"episodes_{frame.status.outcome.value}")
+        if self.config.episodes == 0 or self.episode < self.config.episodes:
+            self.pub_episode.publish(self._result(frame))
+            self.get_logger().info(f"episode {self.episode} over ({frame.status.outcome.value} after "
+                                   f"{frame.status.time:.1f} s); the next starts with seed {self.sim.seed + 1}")
+            self._new_episode(self.sim.seed + 1)
+            self.step_ms.clear()  # the summary covers the drive it describes
+            self._publish_route()
+            self._publish(self.sim.frame)
+            return
         self.finished = True
         try:
             self.pub_episode.publish(self._result(frame))
             self.summary = episode_summary(self.sim, time.monotonic() - self.created_at, self.step_ms)
+            if self.episode > 1:
+                self.summary["episodes"] = dict(self.outcomes)
             self.get_logger().info("episode over: " + dumps_strict(self.summary, indent=None))
             self._write_results()
         finally:

@@ -6,6 +6,8 @@ records when scans, odometry and commands appear, every node's /diagnostics, and
 from __future__ import annotations
 
 import argparse
+import bisect
+import collections
 import io
 import sys
 import threading
@@ -36,7 +38,7 @@ class NodeRow:
     dropped: int
     cpu_share: float  # of one core, mean over the window
     rss_mb: float  # at the end
-    rss_slope_mb_per_10min: float
+    rss_slope_mb_per_10min: float  # over the second half of the window (the first fills caches and pools)
 
 
 @dataclass
@@ -51,8 +53,10 @@ class GraphBench:
     latency_p95_ms: float | None
     scans_dropped_ratio: float
     nodes: list[NodeRow] = field(default_factory=list)
-    episode: str = "running"  # how the simulated drive stood when the measurement ended: running, success, collision, timeout
+    episode: str = "running"  # how the (first) simulated drive stood when the measurement ended: running, success, collision, timeout
     episode_time_s: float = 0.0  # simulated seconds driven by then
+    episodes: dict[str, int] = field(default_factory=dict)  # every drive that ended, by outcome
+    episodes_requested: int = 1  # --episodes: 1 ends the measurement with the first drive, 0 drives back to back
 
 
 class Probe:
@@ -63,12 +67,13 @@ class Probe:
 
         self.node = Node("ssf_bench_probe")
         self.lock = threading.Lock()
-        self.clock_wall: dict[int, float] = {}
+        self.clock_wall: dict[int, list[float]] = collections.defaultdict(list)  # a restarted clock shows a stamp again
         self.scans: list[tuple[float, int]] = []
         self.odometry: list[tuple[float, int]] = []
         self.commands: list[float] = []
         self.diagnostics: dict[str, dict[str, float]] = {}
         self.episode: tuple[str, float] = ("running", 0.0)
+        self.ended: list[tuple[str, float]] = []  # every drive that ended: outcome, simulated seconds
         self.node.create_subscription("rosgraph_msgs/msg/Clock", topics.CLOCK, self.on_clock, QOS_DEFAULT)
         self.node.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA,
                                       raw=True)
@@ -82,12 +87,27 @@ class Probe:
     def on_episode(self, msg: Any) -> None:
         names = {msg.OUTCOME_RUNNING: "running", msg.OUTCOME_SUCCESS: "success", msg.OUTCOME_COLLISION: "collision",
                  msg.OUTCOME_TIMEOUT: "timeout"}
+        outcome = (names.get(msg.outcome, f"outcome {msg.outcome}"), float(msg.time))
         with self.lock:
-            self.episode = (names.get(msg.outcome, f"outcome {msg.outcome}"), float(msg.time))
+            if outcome[0] != "running":
+                self.ended.append(outcome)
+            if self.episode[0] == "running":  # the first drive's outcome stays once it is known
+                self.episode = outcome
 
     def on_clock(self, msg: Any) -> None:
+        stamp, now = messages.stamp_ns(msg.clock), time.monotonic()
         with self.lock:
-            self.clock_wall.setdefault(messages.stamp_ns(msg.clock), time.monotonic())
+            walls = self.clock_wall[stamp]
+            if not walls or now - walls[-1] > 1.0:  # a stamp seen again later: the simulator started another drive
+                walls.append(now)
+
+    def shown_at(self, stamp: int, before: float) -> float | None:
+        """When /clock last showed this stamp before the given wall time (a restarted clock shows stamps again)."""
+        walls = self.clock_wall.get(stamp)
+        if not walls:
+            return None
+        index = bisect.bisect_right(walls, before) - 1
+        return walls[index] if index >= 0 else None
 
     def on_scan(self, cdr: bytes) -> None:
         sec, nanosec = np.frombuffer(bytes(cdr[4:12]), dtype="<i4", count=2)  # CDR header, then std_msgs/Header
@@ -110,8 +130,9 @@ class Probe:
         self.node.destroy_node()
 
 
-def bench_graph_spec(scenario: str) -> GraphSpec:
-    """The demo graph without its recorder, the simulator in real time driven by the planner."""
+def bench_graph_spec(scenario: str, episodes: int = 1) -> GraphSpec:
+    """The demo graph without its recorder, the simulator in real time driven by the planner (`episodes` drives back to
+    back, 0: until stopped)."""
     graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
     nodes = []
     for node in graph.nodes:
@@ -119,7 +140,7 @@ def bench_graph_spec(scenario: str) -> GraphSpec:
             continue
         if node.executable == "sim_bridge":
             node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": "realtime",
-                                                          "driver": "none", "duration_s": 0.0}})
+                                                          "driver": "none", "duration_s": 0.0, "episodes": episodes}})
         nodes.append(node)
     return graph.model_copy(update={"nodes": nodes})
 
@@ -148,7 +169,7 @@ def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, fl
 def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
     """Scan stamp -> the /cmd_vel that answers it: each command answers the newest odometry before it, whose stamp is
     the scan's; the scan's time is when /clock showed that stamp."""
-    answered: set[int] = set()
+    answered: set[tuple[int, float]] = set()  # (stamp, when /clock showed it): stamps repeat when drives restart
     latency: list[float] = []
     odometry = sorted(probe.odometry)
     index = -1
@@ -157,11 +178,12 @@ def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
             index += 1
         if index < 0 or wall < since:
             continue
-        stamp = odometry[index][1]
-        if stamp in answered or stamp not in probe.clock_wall:
+        arrived, stamp = odometry[index]
+        shown = probe.shown_at(stamp, arrived)
+        if shown is None or (stamp, shown) in answered:
             continue
-        answered.add(stamp)
-        latency.append((wall - probe.clock_wall[stamp]) * 1e3)
+        answered.add((stamp, shown))
+        latency.append((wall - shown) * 1e3)
     return latency, answered
 
 
@@ -173,7 +195,8 @@ def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]]
         if not window:
             continue
         times, cpu, rss = (np.array(column) for column in zip(*window))
-        slope = float(np.polyfit(times, rss, 1)[0] * 600.0) if len(times) > 2 else 0.0
+        settled = times >= times[0] + 0.5 * (times[-1] - times[0])  # the slope of the second half: caches have filled
+        slope = float(np.polyfit(times[settled], rss[settled], 1)[0] * 600.0) if settled.sum() > 2 else 0.0
         numbers = probe.diagnostics.get(label, {})
         answered = int(sum(value for key, value in numbers.items() if key.endswith("_answered"))) or int(
             sum(value for key, value in numbers.items() if key in ("estimates", "segmentations", "steps", "ticks",
@@ -184,9 +207,9 @@ def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]]
     return rows
 
 
-def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None) -> GraphBench:
+def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, episodes: int = 1) -> GraphBench:
     """Start the graph, measure for duration_s after the warm-up, stop it, compute the figures."""
-    graph = bench_graph_spec(scenario)
+    graph = bench_graph_spec(scenario, episodes)
     launcher = Launcher(graph, output=log or io.StringIO())
     probe = Probe()
     samples: dict[str, list[tuple[float, float, float]]] = {}
@@ -208,9 +231,10 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None) -
     window_start = started + WARMUP_S
     measured = max(min(time.monotonic(), started + WARMUP_S + duration_s) - window_start, 1e-9)
     with probe.lock:
-        scans = [stamp for wall, stamp in probe.scans if wall >= window_start]
+        scans = [(stamp, probe.shown_at(stamp, wall + 0.5)) for wall, stamp in probe.scans if wall >= window_start]
         commands = [wall for wall in probe.commands if wall >= window_start]
         latency, answered = latencies_ms(probe, window_start)
+        ended = collections.Counter(outcome for outcome, _ in probe.ended)
     answered_scans = len(answered & set(scans))
     return GraphBench(
         duration_s=round(measured, 2), scenario=scenario, scans=len(scans),
@@ -219,7 +243,8 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None) -
         latency_p95_ms=float(np.percentile(latency, 95)) if latency else None,
         scans_dropped_ratio=1.0 - answered_scans / len(scans) if scans else 1.0,
         nodes=node_rows(probe, samples, window_start), episode=probe.episode[0],
-        episode_time_s=round(probe.episode[1], 2))
+        episode_time_s=round(probe.episode[1], 2), episodes=dict(ended),
+        episodes_requested=episodes)
 
 
 def format_bench(bench: GraphBench) -> str:
@@ -229,7 +254,10 @@ def format_bench(bench: GraphBench) -> str:
     lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
              f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %",
              f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'RSS MB':>7} {'MB/10min':>9}"]
-    if bench.episode != "running":
+    if bench.episodes_requested != 1 and bench.episodes:
+        ended = ", ".join(f"{count} {outcome}" for outcome, count in sorted(bench.episodes.items()))
+        lines.insert(1, f"drives ended back to back: {ended}")
+    elif bench.episode != "running":
         lines.insert(1, f"the drive ended after {bench.episode_time_s:.1f} s of simulated time ({bench.episode}): "
                         "the figures cover the graph until then")
     for row in bench.nodes:
@@ -244,6 +272,7 @@ def bench_command(args: argparse.Namespace) -> int:
     """ssf bench graph."""
     from ssf_common.checks import require_finite
     from ssf_common.demo import check_scenario
+    from ssf_common.errors import ConfigError
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable
 
@@ -253,7 +282,9 @@ def bench_command(args: argparse.Namespace) -> int:
         check_writable(args.json, "result file")
     print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
           file=sys.stderr)
-    bench = run_bench(duration, args.scenario, sys.stderr if args.verbose else None)
+    if args.episodes < 0:
+        raise ConfigError(f"--episodes must be 0 (back to back until the duration is over) or more, got {args.episodes}")
+    bench = run_bench(duration, args.scenario, sys.stderr if args.verbose else None, args.episodes)
     print(format_bench(bench))
     if args.json:
         write_json(args.json, asdict(bench))
@@ -272,5 +303,8 @@ def add_parser(bench_commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--duration", type=float, default=60.0, help="measured seconds after the warm-up (default 60)")
     parser.add_argument("--scenario", default="urban_200", help="scenario (default urban_200)")
     parser.add_argument("--json", type=Path, help="write the figures here")
+    parser.add_argument("--episodes", type=int, default=1, help="drives back to back: 1 (default) ends the measurement "
+                        "with the first drive; 0 starts the next drive (next seed, the clock from zero, every node "
+                        "starting a new sequence) until --duration is over, as a long memory run needs")
     parser.add_argument("--verbose", action="store_true", help="show the nodes' output")
     parser.set_defaults(func=bench_command)

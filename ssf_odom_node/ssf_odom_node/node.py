@@ -20,6 +20,7 @@ from ssf_common.geometry.se3 import invert
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
 from ssf_common.records import OdometryEstimate
+from ssf_common.stamps import StampSequence
 from ssf_common.worker import LatestWorker
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_odometry
 
@@ -83,6 +84,7 @@ class OdomNode(Node):
         self.stats = StageStats(self.get_name())
         advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
         self._last_stamp: int | None = None
+        self.sequence = StampSequence()
         self.create_timer(self.wiring.map_period_s, self._publish_map)
         self.create_timer(self.wiring.report_period_s, self._report)
         self.get_logger().info(f"method '{self.config.method.value}' from {self.wiring.input}")
@@ -138,6 +140,11 @@ class OdomNode(Node):
                 self.mount = pose_msgs.matrix_from_transform(item.transform)
 
     def _step(self, _kind: str, frame: OdomInput) -> None:
+        if self.sequence.restarted(frame.stamp_ns):
+            self.get_logger().info("stamps jumped back: the stream restarted; odometry, path and map start again")
+            self.odometry = make_odometry(config=self.config)
+            self.path.clear()
+            self._last_stamp = None
         if self._last_stamp is not None and frame.stamp_ns <= self._last_stamp:
             if frame.stamp_ns < self._last_stamp:  # the same scan again (a later fusion answer) is simply skipped
                 self.get_logger().warning(f"stamp {frame.stamp_ns} is older than the last scan's; dropped")

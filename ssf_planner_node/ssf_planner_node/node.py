@@ -20,6 +20,7 @@ from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles, OdometryEstimate
+from ssf_common.stamps import StampSequence
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import PoseHistory, carried_forward, obstacles_in_route_frame, state_of
 from ssf_planner_node.core.models import Command
@@ -52,6 +53,7 @@ class PlannerNode(Node):
         self.last_command = Command(0.0, 0.0)
         self.sent: deque[tuple[int, Command]] = deque(maxlen=200)  # (clock stamp, command) for latency compensation
         self.said: set[str] = set()
+        self.sequence = StampSequence()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
         self.markers = MarkerSet()
@@ -105,6 +107,11 @@ class PlannerNode(Node):
         except MessageError as err:
             self.get_logger().warning(f"dropped a message on {topics.ODOM}: {err}")
             return
+        if self.sequence.restarted(odometry.stamp_ns):
+            self.get_logger().info("odometry stamps jumped back: the stream restarted; the commands sent and the anchor "
+                                   "are forgotten")
+            self.sent.clear()
+            self.anchor = None
         if self.anchor_odometry:
             odometry = self._anchored(odometry)
         self.poses.add(odometry.stamp_ns, odometry.pose)
@@ -160,7 +167,7 @@ class PlannerNode(Node):
         if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
             obstacles = obstacles.transformed(self.anchor, route_frame)
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
-        if age > self.config.stale_after_s:
+        if abs(age) > self.config.stale_after_s:  # from before a restart of the stream, obstacles lie in the future
             self._said_if(True, "obstacles", f"obstacles are stale ({'none yet' if obstacles is None else f'{age:.1f} s old'}): "
                           f"speed capped at {self.config.stale_speed:g} m/s")
             return None
@@ -175,7 +182,7 @@ class PlannerNode(Node):
         if self.last_odometry_s is None:
             return
         age = self.get_clock().now_s() - self.last_odometry_s
-        if age > self.config.stale_after_s:
+        if abs(age) > self.config.stale_after_s:  # from before a restart of the stream, obstacles lie in the future
             self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s): braking")
             self._publish(braking_on_the_arc(self.last_command, self.config.vehicle.max_decel * self.config.control_period))
 

@@ -19,6 +19,7 @@ from ssf_common.errors import MessageError
 from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, Node, run
+from ssf_common.stamps import StampSequence
 from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, LoopStatus
 from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles, stack, still_clusters
 
@@ -44,6 +45,7 @@ class FusionNode(Node):
         advertise(self, self.stats, refresh=self._refresh)
         self.dt = self.config.dt
         self.last_flow_stamp: int | None = None
+        self.sequence = StampSequence()
         self.hint_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, QOS_DEFAULT)
         self.result_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, QOS_DEFAULT)
         self.obstacle_pub = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, QOS_DEFAULT)
@@ -62,6 +64,10 @@ class FusionNode(Node):
         except MessageError as err:
             self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
             return
+        if self.sequence.restarted(flow.stamp_ns):
+            self.get_logger().info("flow stamps jumped back: the stream restarted, a new sequence begins")
+            self.loop.restart()
+            self.last_flow_stamp = None
         if flow.iteration == 0:
             if self.last_flow_stamp is not None and flow.stamp_ns > self.last_flow_stamp:
                 self.dt = (flow.stamp_ns - self.last_flow_stamp) * 1e-9

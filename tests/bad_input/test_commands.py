@@ -257,6 +257,7 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "graph", f"--duration={d(not_positive())}"],
         lambda d, f: ["bench", "graph", "--scenario", hostile_yaml_file(d, f)],
         lambda d, f: ["bench", "graph", "--json", bad_output(d, f)],
+        lambda d, f: ["bench", "graph", f"--episodes={d(st.integers(max_value=-1))}"],
     ),
 }
 

@@ -9,7 +9,7 @@ import pytest
 from sim_bridge.node import SimBridgeNode
 from ssf_common import messages
 from support import wait_until
-from ssf_common.middleware import QOS_SENSOR_DATA, Node
+from ssf_common.middleware import QOS_LATCHED, QOS_SENSOR_DATA, Node
 
 SMALL = "['route.waypoints=[[0,0],[80,0]]', 'ground.margin=30', 'lidar.columns=128', 'agents.count=0']"
 
@@ -71,3 +71,29 @@ def test_without_commands_the_last_one_applies_after_the_timeout(lockstep_graph)
     cmd.publish(twist(3.0))
     assert wait_until(lambda: len(scans) >= 6, timeout_s=20.0)  # later steps come from the timeout
     assert sim.sim.frame.ego.speed > 1.0  # still driving with the last command
+
+
+def test_episodes_back_to_back_restart_the_clock_with_the_next_seed():
+    """-p episodes:=2: the second drive starts from stamp zero with the next seed and its own route, then the node is done."""
+    sim = SimBridgeNode(argv=[
+        "--ros-args", "-p", "scenario:=empty", "-p", f"overrides:={SMALL}", "-p", "driver:=follow", "-p", "rate:=0.0",
+        "-p", "seed:=7", "-p", "duration_s:=0.3", "-p", "episodes:=2", "-p", "wait_for_subscribers:=1",
+        "-p", "markers:=false", "-p", "exit_when_done:=false",
+    ])
+    listener = Node("listener")
+    scans, routes = [], []
+    listener.create_subscription("sensor_msgs/msg/PointCloud2", "/lidar/points", scans.append, QOS_SENSOR_DATA)
+    listener.create_subscription("nav_msgs/msg/Path", "/sim/route", routes.append, QOS_LATCHED)
+    try:
+        listener.spin_in_thread()
+        sim.spin_in_thread()
+        assert wait_until(lambda: sim.finished, timeout_s=30.0)
+        assert wait_until(lambda: len(scans) == 8)  # 0.3 s = 3 steps after the first scan, twice
+    finally:
+        sim.request_shutdown()
+        sim.destroy_node()
+        listener.destroy_node()
+    stamps = [messages.stamp_ns(scan.header.stamp) // 100_000_000 for scan in scans]
+    assert stamps == [0, 1, 2, 3, 0, 1, 2, 3]
+    assert sim.sim.seed == 8 and sim.episode == 2
+    assert len(routes) == 2

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import threading
 
+import numpy as np
 import pytest
 
 from ssf_common import messages
@@ -16,27 +17,45 @@ class ScriptedProbe:
 
     def __init__(self) -> None:
         self.lock = threading.Lock()
-        self.clock_wall = {100: 10.0, 200: 10.1, 300: 10.2, 400: 10.3}
+        self.clock_wall = {100: [10.0], 200: [10.1], 300: [10.2], 400: [10.3]}
         self.scans = [(10.0, 100), (10.1, 200), (10.2, 300), (10.3, 400)]
         self.odometry = [(10.25, 100), (10.45, 300)]  # scan 200 and 400 never answered
         self.commands = [10.27, 10.29, 10.5]  # the second command answers scan 100 again: counted once
         self.diagnostics = {"ssf_flow_node": {"scan_answered": 3, "hint_answered": 2, "scan_dropped": 1,
                                               "processing_ms_median": 40.0, "processing_ms_p95": 55.0}}
+        self.episode = ("running", 0.0)
+        self.ended = []
+
+    shown_at = Probe.shown_at
 
 
 def test_latency_is_measured_from_the_scans_clock_time_to_the_answering_command():
     latency, answered = latencies_ms(ScriptedProbe(), since=0.0)
-    assert answered == {100, 300}
+    assert answered == {(100, 10.0), (300, 10.2)}
     assert latency == pytest.approx([270.0, 300.0])
-    assert latencies_ms(ScriptedProbe(), since=10.4)[1] == {300}  # the warm-up is left out
+    assert latencies_ms(ScriptedProbe(), since=10.4)[1] == {(300, 10.2)}  # the warm-up is left out
+
+
+def test_a_restarted_clock_is_measured_from_the_stamps_latest_showing():
+    """Drives back to back restart the clock: stamp 100 of the second drive is answered 0.2 s after it was shown."""
+    probe = ScriptedProbe()
+    probe.clock_wall[100].append(50.0)
+    probe.odometry.append((50.15, 100))
+    probe.commands.append(50.2)
+    latency, answered = latencies_ms(probe, since=0.0)
+    assert answered == {(100, 10.0), (300, 10.2), (100, 50.0)}
+    assert latency[-1] == pytest.approx(200.0)
 
 
 def test_node_rows_combine_diagnostics_and_process_samples():
-    samples = {"ssf_flow_node": [(1.0, 50.0, 100.0), (11.0, 70.0, 101.0), (21.0, 90.0, 102.0), (601.0, 70.0, 110.0)]}
+    """RSS jumps at the start (caches filling), then leaks 1 MB per 100 s: the slope is taken over the second half."""
+    times = np.arange(10.0, 601.0, 10.0)
+    rss = 100.0 + 50.0 * (times >= 20) + np.clip(times - 300.0, 0, None) / 100.0
+    samples = {"ssf_flow_node": [(1.0, 0.0, 90.0)] + [(t, 70.0, m) for t, m in zip(times, rss)]}
     [row] = node_rows(ScriptedProbe(), samples, since=5.0)
     assert row.answered == 5 and row.dropped == 1 and row.processing_ms_median == 40.0
-    assert row.cpu_share == pytest.approx(0.7666, abs=1e-3) and row.rss_mb == 110.0
-    assert row.rss_slope_mb_per_10min == pytest.approx(9.0 / 590.0 * 600.0, rel=0.05)
+    assert row.cpu_share == pytest.approx(0.70) and row.rss_mb == pytest.approx(153.0)
+    assert row.rss_slope_mb_per_10min == pytest.approx(6.0, rel=0.05)
 
 
 def test_stage_stats_travel_as_diagnostics():
@@ -58,6 +77,9 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
     assert {"sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_fusion_node", "ssf_odom_node", "ssf_planner_node"} <= set(executables)
     sim = next(node for node in graph.nodes if node.executable == "sim_bridge")
     assert sim.parameters["mode"] == "realtime" and sim.parameters["driver"] == "none"
+    assert sim.parameters["episodes"] == 1
+    back_to_back = next(node for node in bench_graph_spec("urban_200", 0).nodes if node.executable == "sim_bridge")
+    assert back_to_back.parameters["episodes"] == 0
 
 
 def test_a_drive_that_ended_early_is_said_with_its_outcome():
@@ -70,3 +92,16 @@ def test_a_drive_that_ended_early_is_said_with_its_outcome():
     bench = GraphBench(14.0, "urban_200", 127, 3.1, 656.0, 824.0, 0.68, episode="collision", episode_time_s=13.5)
     assert "ended after 13.5 s of simulated time (collision)" in format_bench(bench).splitlines()[1]
     assert "ended after" not in format_bench(GraphBench(60.0, "urban_200", 600, 3.0, 1.0, 2.0, 0.7))
+
+
+def test_drives_back_to_back_keep_the_first_outcome_and_count_every_drive():
+    result = messages.msg_type("ssf_interfaces/msg/EpisodeResult")
+    probe = ScriptedProbe()
+    for outcome, time_s in ((0, 5.0), (2, 13.5), (0, 1.0), (1, 96.0), (0, 2.0)):
+        Probe.on_episode(probe, result(header=messages.header(0, ""), scenario="urban_200", seed=3, outcome=outcome,
+                                       time=time_s, distance=1.0, average_speed=1.0, min_clearance=1.0, num_agents=200))
+    assert probe.episode == ("collision", 13.5)
+    assert probe.ended == [("collision", 13.5), ("success", 96.0)]
+    bench = GraphBench(3600.0, "urban_200", 36000, 3.0, 1.0, 2.0, 0.7, episode="collision", episode_time_s=13.5,
+                       episodes={"collision": 1, "success": 1}, episodes_requested=0)
+    assert "drives ended back to back: 1 collision, 1 success" in format_bench(bench)

@@ -4,6 +4,7 @@ clouds and gaps skipped on the constant-velocity prediction."""
 from __future__ import annotations
 
 import time
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -53,7 +54,7 @@ def graph():
     node.spin_in_thread()
     probe = Node("probe")
     received: dict[str, list] = {"odom": [], "tf": [], "path": [], "map": []}
-    ours = lambda stamp: stamp % PERIOD_NS == 0 and stamp <= 10 * PERIOD_NS  # not another test's leftovers
+    ours = lambda stamp: stamp % PERIOD_NS == 0 and stamp <= 30 * PERIOD_NS  # not another test's leftovers
 
     def on_odom(msg) -> None:
         if msg.child_frame_id == "base_link" and ours(messages.stamp_ns(msg.header.stamp)):
@@ -109,3 +110,20 @@ def test_node_publishes_odometry_tf_path_and_map_from_replayed_scans(graph, capf
     assert after_gap.stamp_ns == 5 * PERIOD_NS
     np.testing.assert_allclose(after_gap.position, [5 * STEP, 0.0, 0.0], atol=0.05)
     assert "dropped a message on /ssf/semantic_flow" in capfd.readouterr().err
+
+
+def test_a_restarted_stream_starts_the_odometry_again(graph):
+    """Stamps jumping back (a simulator reset, a looping bag) start a new sequence: pose, path and map from zero."""
+    node, publisher, received = graph
+    for index in range(3):  # a first drive, stamped 2.0 s onwards
+        publisher.publish(semantic_flow_to_cloud(replace(semantic_flow(index), stamp_ns=(20 + index) * PERIOD_NS)))
+        assert wait_until(lambda: len(received["odom"]) == index + 1)
+    assert odometry_from_msg(received["odom"][-1]).position[0] == pytest.approx(2 * STEP, abs=0.03)
+    for index in range(2):  # the drive starts again at stamp zero
+        publisher.publish(semantic_flow_to_cloud(semantic_flow(index)))
+        assert wait_until(lambda: len(received["odom"]) == 4 + index)
+    restarted = odometry_from_msg(received["odom"][-1])
+    assert restarted.stamp_ns == PERIOD_NS
+    np.testing.assert_allclose(restarted.position, [STEP, 0.0, 0.0], atol=0.03)
+    assert len(received["path"][-1].poses) == 2
+    assert node.sequence.restarts == 1

@@ -125,6 +125,32 @@ def test_world_frame_odometry_is_anchored_at_its_first_pose(graph):
     assert "obstacles" not in node.said and "frames" not in node.said
 
 
+def test_a_restarted_stream_anchors_again_and_forgets_the_commands_sent(graph):
+    """Stamps jumping back (the simulator's next drive) start over: the new first pose is the origin, and commands sent
+    in the last drive no longer carry the pose forward."""
+    from ssf_common.geometry.se3 import make_pose
+
+    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]", "anchor_first_odometry:=true")
+
+    def drive(stamps, start):
+        for count, stamp in enumerate(stamps, start=len(commands) + 1):
+            publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(stamp, "world")))
+            assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == stamp)
+            estimate = OdometryEstimate(stamp, start @ make_pose(5e-9 * (stamp % 10**9)), np.eye(6),
+                                        twist=np.array([5.0, 0, 0, 0, 0, 0.0]), frame_id="world")
+            publishers["odom"].publish(odometry_to_msg(estimate))
+            assert wait_until(lambda: len(commands) == count)
+
+    drive([3_000_000_000, 3_100_000_000], make_pose(250.0, -40.0, 3.0, yaw=2.0))
+    assert len(node.sent) == 2
+    drive([0, 100_000_000], make_pose(-80.0, 10.0, 0.0, yaw=-1.0))
+    assert node.sequence.restarts == 1
+    assert node.poses.at(0)[:3, 3] == pytest.approx([0.0, 0.0, 0.0], abs=1e-9)
+    assert node.poses.at(100_000_000)[:3, 3] == pytest.approx([0.5, 0.0, 0.0], abs=1e-9)
+    assert len(node.sent) == 2  # the last drive's commands are gone
+    assert "obstacles" not in node.said  # the new drive's obstacles were fresh all along
+
+
 def test_braking_without_odometry_keeps_the_arc():
     from ssf_planner_node.core.models import Command
     from ssf_planner_node.node import braking_on_the_arc

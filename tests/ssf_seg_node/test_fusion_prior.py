@@ -42,6 +42,20 @@ def test_the_distributed_loop_adds_the_prior_to_the_first_hint_of_the_next_scan(
     assert isinstance(hint, Continue) and not hint.hint.dynamic_prob.any()
 
 
+def test_a_restarted_stream_is_not_taken_for_late_answers():
+    """After restart() (the fusion node saw stamps jump back) the loop takes the new stream's scans."""
+    loop = DistributedLoop(FusionConfig(max_iterations=1), timeout_s=5.0)
+    points, flow = np.array([[0.0, 0, 0], [4.0, 0, 0]], np.float32), np.zeros((2, 3), np.float32)
+    moving = np.array([0.0, 0.9], np.float32)
+    loop.on_flow(SceneFlow(5_000_000_000, "lidar", points, flow, 0), 0.0)  # its segmentation is still on the way
+    loop.on_flow(SceneFlow(100_000_000, "lidar", points, flow, 0), 1.0)
+    assert loop.on_mask(MotionMask(100_000_000, "lidar", points, moving, np.ones(2, np.int32), 0), 1.0) is None  # late
+    loop.restart()
+    loop.on_flow(SceneFlow(100_000_000, "lidar", points, flow, 0), 1.1)
+    finish = loop.on_mask(MotionMask(100_000_000, "lidar", points, moving, np.ones(2, np.int32), 0), 1.1)
+    assert isinstance(finish, Finish) and finish.result.stamp_ns == 100_000_000
+
+
 class Recorder:
     """Wraps a flow estimator and remembers the masks it was given."""
 

@@ -225,6 +225,10 @@ class DistributedLoop:
         self.gap_ns: int | None = None  # the shortest time between consecutive scans seen
         self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0}
 
+    def restart(self) -> None:
+        """Forget the scan in progress and the last answer: the stream started again (its stamps jumped back)."""
+        self.scan, self.last, self.gap_ns = None, None, None
+
     def on_flow(self, flow: SceneFlow, now_s: float) -> list[Finish]:
         """Remember S^(i); a flow of a newer scan finishes the current one with what it has."""
         done: list[Finish] = []
