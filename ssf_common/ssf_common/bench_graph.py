@@ -20,7 +20,9 @@ from typing import Any
 import numpy as np
 
 from ssf_common import messages, topics
+from ssf_common.config import parse_override
 from ssf_common.diagnostics import read_status
+from ssf_common.errors import ConfigError
 from ssf_common.launch import GraphSpec, Launcher, load_graph
 
 SAMPLE_PERIOD_S = 1.0
@@ -130,10 +132,11 @@ class Probe:
         self.node.destroy_node()
 
 
-def bench_graph_spec(scenario: str, episodes: int = 1) -> GraphSpec:
+def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dict[str, Any]] | None = None) -> GraphSpec:
     """The demo graph without its recorder, the simulator in real time driven by the planner (`episodes` drives back to
-    back, 0: until stopped)."""
+    back, 0: until stopped), with `parameters` set per node name."""
     graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    parameters = parameters or {}
     nodes = []
     for node in graph.nodes:
         if node.executable == "ssf":
@@ -141,8 +144,26 @@ def bench_graph_spec(scenario: str, episodes: int = 1) -> GraphSpec:
         if node.executable == "sim_bridge":
             node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": "realtime",
                                                           "driver": "none", "duration_s": 0.0, "episodes": episodes}})
+        if node.name in parameters:
+            node = node.model_copy(update={"parameters": {**node.parameters, **parameters[node.name]}})
         nodes.append(node)
+    unknown = sorted(set(parameters) - {node.name for node in nodes})
+    if unknown:
+        raise ConfigError(f"-p {unknown[0]}:...: no node of that name in the graph; the nodes are "
+                          f"{', '.join(node.name for node in nodes)}")
     return graph.model_copy(update={"nodes": nodes})
+
+
+def node_parameters(items: list[str]) -> dict[str, dict[str, Any]]:
+    """Per-node settings from `NODE:NAME:=VALUE` items, e.g. ssf_fusion_node:fusion.max_iterations:=1."""
+    settings: dict[str, dict[str, Any]] = {}
+    for item in items:
+        node, separator, setting = item.partition(":")
+        if not separator or not node.strip() or setting.startswith("="):
+            raise ConfigError(f"-p expects NODE:NAME:=VALUE (e.g. ssf_fusion_node:fusion.max_iterations:=1), got {item!r}")
+        name, value = parse_override(setting, f"-p {node}:")
+        settings.setdefault(node.strip(), {})[name] = value
+    return settings
 
 
 def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, float, float]]], stop: threading.Event) -> None:
@@ -207,9 +228,10 @@ def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]]
     return rows
 
 
-def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, episodes: int = 1) -> GraphBench:
+def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, episodes: int = 1,
+              parameters: dict[str, dict[str, Any]] | None = None) -> GraphBench:
     """Start the graph, measure for duration_s after the warm-up, stop it, compute the figures."""
-    graph = bench_graph_spec(scenario, episodes)
+    graph = bench_graph_spec(scenario, episodes, parameters)
     launcher = Launcher(graph, output=log or io.StringIO())
     probe = Probe()
     samples: dict[str, list[tuple[float, float, float]]] = {}
@@ -272,7 +294,6 @@ def bench_command(args: argparse.Namespace) -> int:
     """ssf bench graph."""
     from ssf_common.checks import require_finite
     from ssf_common.demo import check_scenario
-    from ssf_common.errors import ConfigError
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable
 
@@ -280,11 +301,13 @@ def bench_command(args: argparse.Namespace) -> int:
     check_scenario(args.scenario)
     if args.json:
         check_writable(args.json, "result file")
-    print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
-          file=sys.stderr)
     if args.episodes < 0:
         raise ConfigError(f"--episodes must be 0 (back to back until the duration is over) or more, got {args.episodes}")
-    bench = run_bench(duration, args.scenario, sys.stderr if args.verbose else None, args.episodes)
+    parameters = node_parameters(args.param)
+    bench_graph_spec(args.scenario, args.episodes, parameters)  # unknown node names fail here, before any process
+    print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
+          file=sys.stderr)
+    bench = run_bench(duration, args.scenario, sys.stderr if args.verbose else None, args.episodes, parameters)
     print(format_bench(bench))
     if args.json:
         write_json(args.json, asdict(bench))
@@ -306,5 +329,7 @@ def add_parser(bench_commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--episodes", type=int, default=1, help="drives back to back: 1 (default) ends the measurement "
                         "with the first drive; 0 starts the next drive (next seed, the clock from zero, every node "
                         "starting a new sequence) until --duration is over, as a long memory run needs")
+    parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
+                        help="a node's parameter, e.g. -p ssf_fusion_node:fusion.max_iterations:=1 (repeatable)")
     parser.add_argument("--verbose", action="store_true", help="show the nodes' output")
     parser.set_defaults(func=bench_command)

@@ -258,6 +258,8 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "graph", "--scenario", hostile_yaml_file(d, f)],
         lambda d, f: ["bench", "graph", "--json", bad_output(d, f)],
         lambda d, f: ["bench", "graph", f"--episodes={d(st.integers(max_value=-1))}"],
+        lambda d, f: ["bench", "graph", "-p", d(st.sampled_from(["fusion.max_iterations:=1", "nobody:x:=1",
+                                                                  "ssf_flow_node:=3", "ssf_flow_node:x:="]))],
     ),
 }
 
