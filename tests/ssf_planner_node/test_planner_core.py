@@ -70,6 +70,13 @@ def test_tracks_a_straight_and_a_curved_path_at_the_reference_speed():
     assert all(step.status is TickStatus.SOLVED for step in steps)
 
 
+def test_a_car_outside_the_corridor_steers_back_instead_of_braking():
+    """The corridor is soft: 8 m off the route (a pose jump, a swerve round a parked car) the plan exists and leads back."""
+    states, _, steps = drive(planner_for([[0, 0], [400, 0]]), (0.0, 8.0, 0.0, 5.0), 100)
+    assert all(step.status is TickStatus.SOLVED for step in steps)
+    assert abs(states[-1, 1]) < 0.2 and states[-1, 3] > 9.0
+
+
 def test_stops_for_a_static_box_across_the_road():
     wall = boxes([[30.0, 0.0]], [[2.0, 30.0]])
     states, clearance, steps = drive(planner_for([[0, 0], [200, 0]]), (0.0, 0.0, 0.0, 8.0), 80, lambda t: wall)

@@ -86,6 +86,8 @@ class PlannerConfig(Section):
     goal_tolerance: float = Field(3.0, gt=0.0, description="the route is done within this distance of its end (m)")
     corridor_left: float = Field(3.5, gt=0.0, description="the plan stays within this distance left of the route (m)")
     corridor_right: float = Field(3.5, gt=0.0, description="... and right of it (m): the road the route runs along")
+    corridor_gain: float = Field(1000.0, gt=0.0, description="cost per metre and step outside the corridor: it is soft, "
+                                 "so a car already outside it (a pose error, a swerve) steers back instead of braking")
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
     stale_after_s: float = Field(0.5, gt=0.0, description="obstacles (or odometry) older than this are stale")
     max_latency_s: float = Field(1.0, ge=0.0, description="odometry up to this much older than now is carried forward "

@@ -46,8 +46,9 @@ class Solution(NamedTuple):
 
 
 class TrackingProblem:
-    """min tracking + effort + smoothness + slack_gain * slack, s.t. linearised kinematics, limits, the corridor and
-    n . p_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot and step)."""
+    """min tracking + effort + smoothness + slack_gain * slack + corridor_gain * outside, s.t. linearised kinematics,
+    limits, the corridor widened by outside >= 0 (a car already outside it steers back instead of finding no plan),
+    and n . p_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot and step)."""
 
     def __init__(self, config: PlannerConfig) -> None:
         if config.solver.qp not in QP_SOLVERS:
@@ -65,6 +66,7 @@ class TrackingProblem:
         states = ca.SX.sym("X", STATE_SIZE, horizon + 1)
         controls = ca.SX.sym("U", CONTROL_SIZE, horizon)
         slack = ca.SX.sym("E", slots, horizon)
+        outside = ca.SX.sym("O", 1, horizon)  # how far each step lies outside the corridor (soft: never infeasible)
         # parameters: start state, nominal trajectory, reference, previous control, dual directions
         start = ca.SX.sym("x0", STATE_SIZE)
         nominal_x = ca.SX.sym("Xbar", STATE_SIZE, horizon + 1)
@@ -91,7 +93,7 @@ class TrackingProblem:
             factor = w.terminal if k == horizon - 1 else 1.0
             position = states[:2, k + 1]
             lateral = ca.dot(ref_normals[:, k], position - ref_points[:, k])
-            corridor.append(lateral)
+            corridor += [lateral + outside[0, k], lateral - outside[0, k]]
             cost += factor * (w.lateral * lateral ** 2 + w.heading * (states[2, k + 1] - ref_headings[0, k]) ** 2
                               + w.speed * (states[3, k + 1] - ref_speeds[0, k]) ** 2)
             cost += w.accel * controls[0, k] ** 2 + w.turn * controls[1, k] ** 2
@@ -102,9 +104,9 @@ class TrackingProblem:
             for m in range(slots):
                 distance.append(normals_x[m, k] * states[0, k + 1] + normals_y[m, k] * states[1, k + 1]
                                 + slack[m, k] - offsets[m, k])
-        cost += cfg.obstacles.slack_gain * ca.sum1(ca.vec(slack))
+        cost += cfg.obstacles.slack_gain * ca.sum1(ca.vec(slack)) + cfg.corridor_gain * ca.sum2(outside)
         self._equalities = STATE_SIZE * (horizon + 1)
-        variables = ca.veccat(states, controls, slack)
+        variables = ca.veccat(states, controls, slack, outside)
         parameters = ca.veccat(start, nominal_x, nominal_u, ref_points, ref_normals, ref_headings, ref_speeds, previous,
                                normals_x, normals_y, offsets)
         self._sizes = (STATE_SIZE * (horizon + 1), CONTROL_SIZE * horizon, slots * horizon)
@@ -125,11 +127,13 @@ class TrackingProblem:
         ])
         soft = cfg.obstacles.comfort_distance + margins.ravel()
         lbx, ubx = self._bounds(nominal_states, soft)
-        lbg = np.r_[np.zeros(self._equalities), np.full(horizon, -cfg.corridor_right), soft]
-        ubg = np.r_[np.zeros(self._equalities), np.full(horizon, cfg.corridor_left), np.full(horizon * slots, np.inf)]
+        corridor_low = np.tile([-cfg.corridor_right, -np.inf], horizon)  # lateral + outside >= -right
+        corridor_high = np.tile([np.inf, cfg.corridor_left], horizon)  # lateral - outside <= left
+        lbg = np.r_[np.zeros(self._equalities), corridor_low, soft]
+        ubg = np.r_[np.zeros(self._equalities), corridor_high, np.full(horizon * slots, np.inf)]
         guess = self._warm or {}
         result = self.solver(p=parameters, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg,
-                             x0=np.r_[nominal_states.ravel(), nominal_controls.ravel(), np.zeros(horizon * slots)],
+                             x0=np.r_[nominal_states.ravel(), nominal_controls.ravel(), np.zeros(horizon * (slots + 1))],
                              **({"lam_x0": guess["lam_x"], "lam_g0": guess["lam_g"]} if guess else {}))
         stats = self.solver.stats()
         solution = np.asarray(result["x"]).reshape(-1)
@@ -139,7 +143,7 @@ class TrackingProblem:
         n_x, n_u, _ = self._sizes
         states = solution[:n_x].reshape(horizon + 1, STATE_SIZE)
         controls = solution[n_x:n_x + n_u].reshape(horizon, CONTROL_SIZE)
-        slack = solution[n_x + n_u:].reshape(horizon, slots)
+        slack = solution[n_x + n_u:n_x + n_u + horizon * slots].reshape(horizon, slots)
         return Solution(states, controls, slack, success, str(stats.get("return_status", "")))
 
     def _bounds(self, nominal_states: np.ndarray, soft: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -152,5 +156,5 @@ class TrackingProblem:
         control_low = np.stack([np.full(horizon, -cfg.vehicle.max_decel), -turn], axis=1)
         control_high = np.stack([np.full(horizon, cfg.vehicle.max_accel), turn], axis=1)
         slack_high = soft - cfg.obstacles.safety_distance
-        return (np.r_[state_low.ravel(), control_low.ravel(), np.zeros(horizon * slots)],
-                np.r_[state_high.ravel(), control_high.ravel(), slack_high])
+        return (np.r_[state_low.ravel(), control_low.ravel(), np.zeros(horizon * slots), np.zeros(horizon)],
+                np.r_[state_high.ravel(), control_high.ravel(), slack_high, np.full(horizon, np.inf)])
