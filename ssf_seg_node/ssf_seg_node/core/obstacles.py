@@ -61,21 +61,26 @@ class ObstacleConfig(Section):
 def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentation, ego: np.ndarray, dt: float,
                       stamp_ns: int, frame_id: str, config: ObstacleConfig) -> Obstacles:
     """Obstacles of scan t in its sensor frame: boxes at time t, velocities of the objects themselves (ego removed)."""
-    points, flow = np.asarray(points, np.float64), np.asarray(flow, np.float64)
-    instances, counts = np.unique(segmentation.instance[segmentation.instance > 0], return_counts=True)
-    instances = instances[counts >= config.min_points]
+    instance = np.asarray(segmentation.instance)
+    moving = np.flatnonzero(instance > 0)
+    moving = moving[np.argsort(instance[moving], kind="stable")]  # the points of each instance together
+    instances, starts, counts = np.unique(instance[moving], return_index=True, return_counts=True)
+    members = [moving[start:start + count] for start, count in zip(starts, counts) if count >= config.min_points]
+    if not members:
+        return Obstacles.empty(stamp_ns, frame_id)
+    instances, counts = instances[counts >= config.min_points], counts[counts >= config.min_points]
+    kept = np.concatenate(members)
+    points, flow = np.asarray(points, np.float64)[kept], np.asarray(flow, np.float64)[kept]
     # the object's own displacement in scan t's axes: where it is at t+1, seen from the sensor pose at t, minus where
     # it was (the flow alone also carries the ego motion)
     back = invert(ego)
     own = (points + flow) @ back[:3, :3].T + back[:3, 3] - points
-    rows = [describe(points[segmentation.instance == k], own[segmentation.instance == k] / dt, config) for k in instances]
-    if not rows:
-        return Obstacles.empty(stamp_ns, frame_id)
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    rows = [describe(points[lo:hi], own[lo:hi] / dt, config) for lo, hi in zip(bounds[:-1], bounds[1:])]
     centres, sizes, yaws, kinds, velocities, covariances = (np.array(column) for column in zip(*rows))
     return Obstacles(stamp_ns, frame_id, ids=instances, kinds=kinds, centres=centres, sizes=sizes, yaws=yaws,
-                     velocities=velocities, velocity_covariances=covariances,
-                     point_counts=np.array([np.count_nonzero(segmentation.instance == k) for k in instances]),
-                     confidences=np.array([segmentation.dynamic_prob[segmentation.instance == k].mean() for k in instances]))
+                     velocities=velocities, velocity_covariances=covariances, point_counts=counts,
+                     confidences=np.array([segmentation.dynamic_prob[member].mean() for member in members]))
 
 
 def describe(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig):
