@@ -41,9 +41,10 @@ class ObstacleConfig(Section):
     min_points: int = Field(5, ge=1, description="instances with fewer points are not reported")
     vehicle_length: float = Field(1.2, gt=0.0, description="footprints with a side at least this long (m) are vehicles, "
                                   "else pedestrians (a car seen end-on shows only its width)")
-    heading_speed: float = Field(1.0, ge=0.0, description="an object at least this fast (m/s), and clearly moving (see "
+    heading_speed: float = Field(0.5, ge=0.0, description="an object at least this fast (m/s), and clearly moving (see "
                                  "heading_significance), has its heading along its velocity: a vehicle its length along "
-                                 "the side of its fitted footprint closest to its velocity")
+                                 "the side of its fitted footprint closest to its velocity (which needs the velocity's "
+                                 "direction within 45 degrees: the flow's velocity errors are a few tenths of a m/s)")
     heading_significance: float = Field(3.0, ge=0.0, description="clearly moving: the speed is at least this many "
                                         "standard deviations of the velocity along its direction (from its covariance)")
     fit_step: float = Field(1.0, gt=0.0, le=45.0, description="angle step (degrees) of the footprint fit's search")
