@@ -92,10 +92,9 @@ def describe(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig)
     xy = points[:, :2]
     axis = fit_footprint_axis(xy[:: -(-len(xy) // config.fit_points)], np.radians(config.fit_step), config.fit_closeness)
     moving = clearly_moving(velocity[:2], covariance[:2, :2], config)
-    sides, yaw = extent_along(xy, axis)[1], axis
-    if sides[1] > sides[0]:  # the longer side is the length until the motion says otherwise
-        yaw += np.pi / 2
-    kind = ObstacleKind.VEHICLE if max(extent_along(xy, yaw)[1]) >= config.vehicle_length else ObstacleKind.PEDESTRIAN
+    sides = extent_along(xy, axis)[1]
+    yaw = axis + (np.pi / 2 if sides[1] > sides[0] else 0.0)  # the longer side is the length, unless it moves
+    kind = ObstacleKind.VEHICLE if sides.max() >= config.vehicle_length else ObstacleKind.PEDESTRIAN
     if moving:  # the heading along the motion: a vehicle's along its fitted side closest to it, a pedestrian's exactly
         heading = float(np.arctan2(velocity[1], velocity[0]))
         yaw = heading_of_nearest_side(axis, heading) if kind is ObstacleKind.VEHICLE else heading
@@ -110,9 +109,7 @@ def describe(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig)
 
 
 def fit_footprint_axis(xy: np.ndarray, step: float, closeness: float) -> float:
-    """The heading in [0, pi/2) of the rectangle whose sides the points hug most (the closeness criterion of L-shape
-    fitting, Zhang et al. 2017): right for an L (a corner seen) or one visible side, where the minimum-area
-    rectangle of a few noisy points often takes the diagonal."""
+    """Heading in [0, pi/2) of the rectangle whose sides the points hug most (L-shape closeness, Zhang et al. 2017)."""
     angles = np.arange(0.0, np.pi / 2, step)
     c, s = np.cos(angles), np.sin(angles)
     u, v = xy @ np.stack([c, s]), xy @ np.stack([-s, c])  # (points, angles)
@@ -131,8 +128,7 @@ def extent_along(xy: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 def clearly_moving(velocity: np.ndarray, covariance: np.ndarray, config: ObstacleConfig) -> bool:
-    """Whether a velocity (2,) is fast enough and stands out of its noise (its standard deviation along its own
-    direction, from the covariance (2, 2)) to tell the heading."""
+    """Whether a velocity (2,) is fast enough, and that many sigmas of its covariance (2, 2) along it, to tell a heading."""
     speed = float(np.hypot(*velocity))
     if speed == 0.0 or speed < config.heading_speed:
         return False
@@ -148,9 +144,8 @@ def heading_of_nearest_side(axis: float, heading: float) -> float:
 
 
 def grow_away_from_sensor(centre: np.ndarray, sides: np.ndarray, yaw: float, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Grow a footprint seen from the sensor (at the origin) to at least the prior size, on its far sides: the
-    LiDAR sees only the faces turned towards it. Along an axis the sensor lies within (both ends are outlines, not
-    faces), the footprint grows equally both ways."""
+    """Grow a footprint to at least the prior size on the sides hidden from the sensor (at the origin); both ways along
+    an axis the sensor lies within."""
     axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # rows: length axis, width axis
     grown = np.maximum(sides, prior)
     shift = np.zeros(2)
