@@ -112,7 +112,7 @@ def test_a_vehicle_seen_end_on_gets_its_length_along_its_motion():
 def test_growing_keeps_the_seen_side_in_place():
     centre, sides = grow_away_from_sensor(np.array([10.0, 0.0]), np.array([0.6, 0.1]), 0.0, np.array([0.6, 0.6]))
     np.testing.assert_allclose(sides, [0.6, 0.6])
-    np.testing.assert_allclose(centre, [10.0, 0.25], atol=1e-12)  # grown along +y (no side is farther: +y)
+    np.testing.assert_allclose(centre, [10.0, 0.0], atol=1e-12)  # the sensor is within its y extent: grown both ways
     centre, _ = grow_away_from_sensor(np.array([0.0, 10.0]), np.array([0.6, 0.1]), 0.0, np.array([0.6, 0.6]))
     np.testing.assert_allclose(centre, [0.0, 10.25])
 

@@ -83,16 +83,17 @@ def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], 
 
 
 def format_seg_table(rows: Sequence[MethodScores]) -> str:
-    """Accuracy, balanced accuracy, moving IoU, instance P/R/F1/PQ, obstacle errors and time per method."""
+    """Accuracy, balanced accuracy, moving IoU, instance P/R/F1/PQ, obstacle errors, time and box yaw errors per method."""
     header = (f"{'method':<22} {'acc %':>6} {'bal %':>6} {'IoU':>6} {'P':>5} {'R':>5} {'F1':>5} {'PQ':>5} "
-              f"{'pos m':>6} {'vel m/s':>7} {'miss %':>6} {'ph/10':>5} {'ms':>7} {'it':>4}")
+              f"{'pos m':>6} {'vel m/s':>7} {'miss %':>6} {'ph/10':>5} {'ms':>7} {'it':>4} {'yaw °':>5} {'>30° %':>6}")
     lines = [header, "-" * len(header)]
     for row in rows:
         s, o = row.scores, row.obstacles
         lines.append(f"{row.label:<22} {100 * s.accuracy:6.2f} {100 * s.balanced_accuracy:6.2f} {s.moving_iou:6.3f} "
                      f"{s.precision:5.2f} {s.recall:5.2f} {s.f1:5.2f} {s.pq:5.2f} {o['position_m_median']:6.2f} "
                      f"{o['velocity_mps_median']:7.2f} {100 * o['missed_ratio']:6.1f} {o['phantoms_per_10_frames']:5.2f} "
-                     f"{row.ms_median:7.1f} {row.iterations_mean:4.1f}")
+                     f"{row.ms_median:7.1f} {row.iterations_mean:4.1f} {o['yaw_deg_median']:5.1f} "
+                     f"{100 * o['yaw_over_30deg_ratio']:6.1f}")
     return "\n".join(lines)
 
 

@@ -9,7 +9,7 @@ import numpy as np
 
 from ssf_common.dataset.pairs import ScanPair
 from ssf_common.geometry.se3 import invert
-from ssf_common.records import Obstacles, Segmentation
+from ssf_common.records import ObstacleKind, Obstacles, Segmentation
 
 MIN_OBJECT_POINTS = 50  # true objects with fewer points are ignored (OGC)
 MATCH_IOU = 0.5
@@ -111,19 +111,32 @@ class ObstacleErrors(NamedTuple):
     missed: int = 0
     phantoms: int = 0
     frames: int = 0
+    yaw: tuple[float, ...] = ()  # degrees, modulo the true footprint's symmetry
+    yaw_vehicle: tuple[float, ...] = ()  # the same, vehicles only
 
     def __add__(self, other: ObstacleErrors) -> ObstacleErrors:  # type: ignore[override]
-        return ObstacleErrors(self.position + other.position, self.velocity + other.velocity,
-                              self.true_objects + other.true_objects, self.missed + other.missed,
-                              self.phantoms + other.phantoms, self.frames + other.frames)
+        return ObstacleErrors(*(mine + theirs for mine, theirs in zip(self, other)))
 
     def summary(self) -> dict[str, float]:
-        """Median errors, miss share and phantoms per 10 frames."""
-        return {"position_m_median": float(np.median(self.position)) if self.position else float("nan"),
-                "velocity_mps_median": float(np.median(self.velocity)) if self.velocity else float("nan"),
+        """Median errors, miss share, phantoms per 10 frames, and yaw errors (median, share over 30 degrees)."""
+        return {"position_m_median": _median(self.position), "velocity_mps_median": _median(self.velocity),
                 "missed_ratio": _ratio(self.missed, self.true_objects),
                 "phantoms_per_10_frames": _ratio(10 * self.phantoms, self.frames),
-                "true_objects": self.true_objects, "matches": len(self.velocity)}
+                "true_objects": self.true_objects, "matches": len(self.velocity),
+                "yaw_deg_median": _median(self.yaw), "yaw_over_30deg_ratio": _ratio(sum(e > 30 for e in self.yaw), len(self.yaw)),
+                "yaw_deg_median_vehicles": _median(self.yaw_vehicle),
+                "yaw_over_30deg_ratio_vehicles": _ratio(sum(e > 30 for e in self.yaw_vehicle), len(self.yaw_vehicle))}
+
+
+def _median(values: tuple[float, ...]) -> float:
+    """Median, NaN of nothing."""
+    return float(np.median(values)) if values else float("nan")
+
+
+def yaw_error(estimate: float, truth: float, length: float, width: float) -> float:
+    """Degrees between two box headings, modulo the true footprint's symmetry (180 degrees; 90 for a square)."""
+    period = np.pi / 2 if np.isclose(length, width, rtol=1e-3) else np.pi
+    return float(np.degrees(abs((estimate - truth + period / 2) % period - period / 2)))
 
 
 def true_velocities(pair: ScanPair, dt: float) -> np.ndarray:
@@ -134,14 +147,15 @@ def true_velocities(pair: ScanPair, dt: float) -> np.ndarray:
 
 def obstacle_errors(obstacles: Obstacles, segmentation: Segmentation, pair: ScanPair, dt: float,
                     min_points: int = MIN_OBJECT_POINTS) -> ObstacleErrors:
-    """Match each obstacle to the true object most of its points lie on; errors of the matches, misses of true
-    moving objects (>= min_points) and phantoms (obstacles mostly on static points)."""
+    """Match each obstacle to the true object most of its points lie on; errors of the matches (centre, velocity,
+    yaw), misses of true moving objects (>= min_points) and phantoms (obstacles mostly on static points)."""
     truth = np.where(pair.dynamic1, pair.instance1, 0)
     objects, sizes = np.unique(truth[truth > 0], return_counts=True)
     counted = set(objects[sizes >= min_points].tolist())
     velocities = true_velocities(pair, dt)
-    centres = {} if pair.objects1 is None else dict(zip(pair.objects1.ids.tolist(), pair.objects1.centres))
-    position, velocity, found, phantoms = [], [], set(), 0
+    objects1 = pair.objects1
+    rows = {} if objects1 is None else {k: row for row, k in enumerate(objects1.ids.tolist())}
+    position, velocity, yaw, yaw_vehicle, found, phantoms = [], [], [], [], set(), 0
     for index, k in enumerate(obstacles.ids):
         owners = truth[segmentation.instance == k]
         if owners.size == 0:
@@ -154,9 +168,14 @@ def obstacle_errors(obstacles: Obstacles, segmentation: Segmentation, pair: Scan
             continue
         found.add(best)
         velocity.append(float(np.linalg.norm(obstacles.velocities[index, :2] - velocities[truth == best, :2].mean(axis=0))))
-        if best in centres:
-            position.append(float(np.linalg.norm(obstacles.centres[index, :2] - centres[best][:2])))
-    return ObstacleErrors(tuple(position), tuple(velocity), len(counted), len(counted - found), phantoms, 1)
+        if best in rows:
+            row = rows[best]
+            position.append(float(np.linalg.norm(obstacles.centres[index, :2] - objects1.centres[row, :2])))
+            yaw.append(yaw_error(obstacles.yaws[index], objects1.yaws[row], *objects1.sizes[row, :2]))
+            if objects1.kinds[row] == ObstacleKind.VEHICLE:
+                yaw_vehicle.append(yaw[-1])
+    return ObstacleErrors(tuple(position), tuple(velocity), len(counted), len(counted - found), phantoms, 1,
+                          tuple(yaw), tuple(yaw_vehicle))
 
 
 def pool(items: Iterable):

@@ -10,7 +10,7 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
-from ssf_common.geometry.boxes import bounding_box, min_area_rectangle
+from ssf_common.geometry.boxes import bounding_box
 from ssf_common.geometry.clustering import dbscan
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts
@@ -41,8 +41,17 @@ class ObstacleConfig(Section):
     min_points: int = Field(5, ge=1, description="instances with fewer points are not reported")
     vehicle_length: float = Field(1.2, gt=0.0, description="footprints with a side at least this long (m) are vehicles, "
                                   "else pedestrians (a car seen end-on shows only its width)")
-    heading_speed: float = Field(1.0, ge=0.0, description="a vehicle this fast (m/s) has its length along the side of its "
-                                 "footprint closest to its velocity")
+    heading_speed: float = Field(0.5, ge=0.0, description="an object at least this fast (m/s), and clearly moving (see "
+                                 "heading_significance), has its heading along its velocity: a vehicle its length along "
+                                 "the side of its fitted footprint closest to its velocity (which needs the velocity's "
+                                 "direction within 45 degrees: the flow's velocity errors are a few tenths of a m/s)")
+    heading_significance: float = Field(3.0, ge=0.0, description="clearly moving: the speed is at least this many "
+                                        "standard deviations of the velocity along its direction (from its covariance)")
+    fit_step: float = Field(1.0, gt=0.0, le=45.0, description="angle step (degrees) of the footprint fit's search")
+    fit_closeness: float = Field(0.05, gt=0.0, description="the footprint fit counts points this close (m) to a side as "
+                                 "on it (the floor of the closeness criterion: the points' noise)")
+    fit_points: int = Field(256, ge=8, description="the footprint fit looks at most at this many points of an object, "
+                            "evenly spread over its points")
     vehicle_size: tuple[float, float] = Field((4.4, 1.8), description="a vehicle's footprint is grown to at least this "
                                               "(length, width; m), away from the sensor (its hidden sides)")
     pedestrian_size: tuple[float, float] = Field((0.6, 0.6), description="the same for pedestrians")
@@ -53,55 +62,97 @@ class ObstacleConfig(Section):
 def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentation, ego: np.ndarray, dt: float,
                       stamp_ns: int, frame_id: str, config: ObstacleConfig) -> Obstacles:
     """Obstacles of scan t in its sensor frame: boxes at time t, velocities of the objects themselves (ego removed)."""
-    points, flow = np.asarray(points, np.float64), np.asarray(flow, np.float64)
-    instances, counts = np.unique(segmentation.instance[segmentation.instance > 0], return_counts=True)
-    instances = instances[counts >= config.min_points]
+    instance = np.asarray(segmentation.instance)
+    moving = np.flatnonzero(instance > 0)
+    moving = moving[np.argsort(instance[moving], kind="stable")]  # the points of each instance together
+    instances, starts, counts = np.unique(instance[moving], return_index=True, return_counts=True)
+    members = [moving[start:start + count] for start, count in zip(starts, counts) if count >= config.min_points]
+    if not members:
+        return Obstacles.empty(stamp_ns, frame_id)
+    instances, counts = instances[counts >= config.min_points], counts[counts >= config.min_points]
+    kept = np.concatenate(members)
+    points, flow = np.asarray(points, np.float64)[kept], np.asarray(flow, np.float64)[kept]
     # the object's own displacement in scan t's axes: where it is at t+1, seen from the sensor pose at t, minus where
     # it was (the flow alone also carries the ego motion)
     back = invert(ego)
     own = (points + flow) @ back[:3, :3].T + back[:3, 3] - points
-    rows = [describe(points[segmentation.instance == k], own[segmentation.instance == k] / dt, config) for k in instances]
-    if not rows:
-        return Obstacles.empty(stamp_ns, frame_id)
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    rows = [describe(points[lo:hi], own[lo:hi] / dt, config) for lo, hi in zip(bounds[:-1], bounds[1:])]
     centres, sizes, yaws, kinds, velocities, covariances = (np.array(column) for column in zip(*rows))
     return Obstacles(stamp_ns, frame_id, ids=instances, kinds=kinds, centres=centres, sizes=sizes, yaws=yaws,
-                     velocities=velocities, velocity_covariances=covariances,
-                     point_counts=np.array([np.count_nonzero(segmentation.instance == k) for k in instances]),
-                     confidences=np.array([segmentation.dynamic_prob[segmentation.instance == k].mean() for k in instances]))
+                     velocities=velocities, velocity_covariances=covariances, point_counts=counts,
+                     confidences=np.array([segmentation.dynamic_prob[member].mean() for member in members]))
 
 
 def describe(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig):
     """Box (centre, size, yaw), kind, mean velocity and its covariance of one object's points."""
     velocity = velocities.mean(axis=0)
-    centre_xy, sides, yaw = min_area_rectangle(points[:, :2])
-    kind = ObstacleKind.VEHICLE if sides[0] >= config.vehicle_length else ObstacleKind.PEDESTRIAN
-    if kind is ObstacleKind.VEHICLE and np.hypot(*velocity[:2]) >= config.heading_speed:
-        sides, yaw = along_velocity(sides, yaw, velocity[:2])
+    spread = np.cov(velocities.T) / len(velocities) if len(velocities) > 1 else np.zeros((3, 3))
+    covariance = spread + np.eye(3) * config.velocity_noise ** 2
+    xy = points[:, :2]
+    axis = fit_footprint_axis(xy[:: -(-len(xy) // config.fit_points)], np.radians(config.fit_step), config.fit_closeness)
+    moving = clearly_moving(velocity[:2], covariance[:2, :2], config)
+    sides = extent_along(xy, axis)[1]
+    yaw = axis + (np.pi / 2 if sides[1] > sides[0] else 0.0)  # the longer side is the length, unless it moves
+    kind = ObstacleKind.VEHICLE if sides.max() >= config.vehicle_length else ObstacleKind.PEDESTRIAN
+    if moving:  # the heading along the motion: a vehicle's along its fitted side closest to it, a pedestrian's exactly
+        heading = float(np.arctan2(velocity[1], velocity[0]))
+        yaw = heading_of_nearest_side(axis, heading) if kind is ObstacleKind.VEHICLE else heading
+    else:
+        yaw = float((yaw + np.pi / 2) % np.pi - np.pi / 2)
+    centre_xy, sides = extent_along(xy, yaw)
     prior = config.vehicle_size if kind is ObstacleKind.VEHICLE else config.pedestrian_size
     centre_xy, sides = grow_away_from_sensor(centre_xy, sides, yaw, np.array(prior))
     low, high = points[:, 2].min(), points[:, 2].max()
-    spread = np.cov(velocities.T) / len(velocities) if len(velocities) > 1 else np.zeros((3, 3))
-    covariance = spread + np.eye(3) * config.velocity_noise ** 2
     return (np.array([centre_xy[0], centre_xy[1], (low + high) / 2]), np.array([sides[0], sides[1], high - low]),
             yaw, int(kind), velocity, covariance)
 
 
-def along_velocity(sides: np.ndarray, yaw: float, velocity: np.ndarray) -> tuple[np.ndarray, float]:
-    """The footprint's sides and heading with the length axis the one closer to the direction of travel (a vehicle
-    seen end-on shows a face as wide as it is, across its motion)."""
-    across = abs(np.cos(yaw) * velocity[1] - np.sin(yaw) * velocity[0]) > abs(np.cos(yaw) * velocity[0] + np.sin(yaw) * velocity[1])
-    return (sides[::-1].copy(), float((yaw + np.pi) % np.pi - np.pi / 2)) if across else (sides, yaw)
+def fit_footprint_axis(xy: np.ndarray, step: float, closeness: float) -> float:
+    """Heading in [0, pi/2) of the rectangle whose sides the points hug most (L-shape closeness, Zhang et al. 2017)."""
+    angles = np.arange(0.0, np.pi / 2, step)
+    c, s = np.cos(angles), np.sin(angles)
+    u, v = xy @ np.stack([c, s]), xy @ np.stack([-s, c])  # (points, angles)
+    to_u = np.minimum(u.max(axis=0) - u, u - u.min(axis=0))
+    to_v = np.minimum(v.max(axis=0) - v, v - v.min(axis=0))
+    score = (1.0 / np.maximum(np.minimum(to_u, to_v), closeness)).sum(axis=0)
+    return float(angles[int(np.argmax(score))])
+
+
+def extent_along(xy: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
+    """Centre (2,) and sides (along yaw, across) of the rectangle at heading yaw around the points."""
+    axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
+    uv = xy @ axes.T
+    low, high = uv.min(axis=0), uv.max(axis=0)
+    return (low + high) / 2 @ axes, high - low
+
+
+def clearly_moving(velocity: np.ndarray, covariance: np.ndarray, config: ObstacleConfig) -> bool:
+    """Whether a velocity (2,) is fast enough, and that many sigmas of its covariance (2, 2) along it, to tell a heading."""
+    speed = float(np.hypot(*velocity))
+    if speed == 0.0 or speed < config.heading_speed:
+        return False
+    direction = velocity / speed
+    return speed >= config.heading_significance * float(np.sqrt(direction @ covariance @ direction))
+
+
+def heading_of_nearest_side(axis: float, heading: float) -> float:
+    """The direction of the rectangle side (at axis, axis + pi/2, ...) closest to the heading, in [-pi, pi)."""
+    sides = axis + np.arange(4) * np.pi / 2
+    nearest = sides[int(np.argmin(np.abs((sides - heading + np.pi) % (2 * np.pi) - np.pi)))]
+    return float((nearest + np.pi) % (2 * np.pi) - np.pi)
 
 
 def grow_away_from_sensor(centre: np.ndarray, sides: np.ndarray, yaw: float, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Grow a footprint seen from the sensor (at the origin) to at least the prior size, on its far sides: the
-    LiDAR sees only the faces turned towards it."""
+    """Grow a footprint to at least the prior size on the sides hidden from the sensor (at the origin); both ways along
+    an axis the sensor lies within."""
     axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])  # rows: length axis, width axis
     grown = np.maximum(sides, prior)
     shift = np.zeros(2)
     for axis in range(2):
         extra = (grown[axis] - sides[axis]) / 2
-        away = np.sign(axes[axis] @ centre) or 1.0  # the far side along this axis
+        along = axes[axis] @ centre  # the sensor is at -along from the centre on this axis
+        away = np.sign(along) if abs(along) > sides[axis] / 2 else 0.0  # the far side along this axis
         shift += away * extra * axes[axis]
     return centre + shift, grown
 
