@@ -77,6 +77,15 @@ def test_a_car_outside_the_corridor_steers_back_instead_of_braking():
     assert abs(states[-1, 1]) < 0.2 and states[-1, 3] > 9.0
 
 
+@pytest.mark.parametrize("yaw, speed", [(2.5, 3.0), (3.0, 0.0)])
+def test_turned_round_it_turns_back_instead_of_driving_the_route_backwards(yaw, speed):
+    # issue 11: swung round while waiting behind traffic, the car drove the route backwards at the reference speed
+    states, _, _ = drive(planner_for([[-300, 0], [300, 0]]), (0.0, 0.0, yaw, speed), 200)
+    assert states[:, 0].min() > -5.0  # never more than a few metres the wrong way
+    assert states[-1, 0] > 100.0 and abs(np.angle(np.exp(1j * states[-1, 2]))) < 0.05  # on its way along the route
+    assert states[-1, 3] == pytest.approx(10.0, abs=0.3)
+
+
 def test_stops_for_a_static_box_across_the_road():
     wall = boxes([[30.0, 0.0]], [[2.0, 30.0]])
     states, clearance, steps = drive(planner_for([[0, 0], [200, 0]]), (0.0, 0.0, 0.0, 8.0), 80, lambda t: wall)

@@ -36,7 +36,8 @@ class WeightsConfig(Section):
 
     lateral: float = Field(1.0, ge=0.0, description="squared distance across the route (per m^2)")
     heading: float = Field(1.0, ge=0.0, description="squared heading error against the route (per rad^2)")
-    speed: float = Field(1.0, ge=0.0, description="squared speed error against the reference (per (m/s)^2)")
+    speed: float = Field(1.0, ge=0.0, description="squared error of the speed along the route (v cos(heading error)) "
+                         "against the reference (per (m/s)^2)")
     accel: float = Field(0.1, ge=0.0, description="squared acceleration")
     turn: float = Field(2.0, ge=0.0, description="squared yaw rate (unicycle) or steering angle (bicycle)")
     accel_rate: float = Field(0.1, ge=0.0, description="squared change of acceleration between steps")

@@ -1,5 +1,5 @@
 """The primal problem of one tick, built once as a parametric CasADi QP and only re-solved: kinematics linearised
-along a nominal trajectory, route tracking at the reference speed within a corridor along the route (the road it
+along a nominal trajectory, route tracking at the reference speed (the speed along the route) within a corridor along the route (the road it
 runs on), and per obstacle and step a distance bound that
 is linear for fixed dual directions (hard at the safety distance, soft up to the comfort distance plus headway)."""
 
@@ -43,6 +43,13 @@ class Solution(NamedTuple):
     slack: np.ndarray
     success: bool
     status: str
+
+
+def progress(state: ca.SX, nominal: ca.SX, heading: ca.SX) -> ca.SX:
+    """Speed along the route, v cos(yaw - route heading), linearised at the nominal state (linear in the state):
+    speed the wrong way along the route counts against the reference speed, so turning round never pays."""
+    error = nominal[2] - heading
+    return ca.cos(error) * state[3] - nominal[3] * ca.sin(error) * (state[2] - nominal[2])
 
 
 class TrackingProblem:
@@ -95,7 +102,8 @@ class TrackingProblem:
             lateral = ca.dot(ref_normals[:, k], position - ref_points[:, k])
             corridor += [lateral + outside[0, k], lateral - outside[0, k]]
             cost += factor * (w.lateral * lateral ** 2 + w.heading * (states[2, k + 1] - ref_headings[0, k]) ** 2
-                              + w.speed * (states[3, k + 1] - ref_speeds[0, k]) ** 2)
+                              + w.speed * (progress(states[:, k + 1], nominal_x[:, k + 1], ref_headings[0, k])
+                                           - ref_speeds[0, k]) ** 2)
             cost += w.accel * controls[0, k] ** 2 + w.turn * controls[1, k] ** 2
             before = previous if k == 0 else controls[:, k - 1]
             cost += w.accel_rate * (controls[0, k] - before[0]) ** 2 + w.turn_rate * (controls[1, k] - before[1]) ** 2
