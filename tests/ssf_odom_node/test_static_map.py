@@ -17,7 +17,7 @@ WALKER_Y = 6.0
 EGO_SPEED, WALKER_SPEED, PERIOD = 1.0, 1.2, 0.1  # m/s, m/s, s
 
 
-def rays(beams: int = 32, columns: int = 720) -> np.ndarray:
+def rays(beams: int = 64, columns: int = 720) -> np.ndarray:
     """Unit directions of a spinning sensor: `beams` elevations from -25 to +5 deg, `columns` azimuths."""
     elevation = np.radians(np.linspace(-25.0, 5.0, beams))[:, None]
     azimuth = np.linspace(-np.pi, np.pi, columns, endpoint=False)[None, :]
@@ -86,8 +86,8 @@ def wall_voxels(points: np.ndarray) -> int:
 def test_a_walker_labelled_static_leaves_no_trail_and_the_walls_stay(flow_sees_walker):
     """Without the new rules the walker's trail is in the map; free-space clearing (flow blind too) or its own
     motion in the flow keeps the walked path empty, and the walls and the ground stay mapped."""
-    legacy = OdomConfig(map=MapConfig(max_speed=0.0, clear_cell=0.0))
-    robust = OdomConfig(map=MapConfig(clear_cell=1.0 if not flow_sees_walker else 0.0))
+    legacy = OdomConfig(map=MapConfig(max_speed=0.0, clear_cell=0.0, confirm=1))
+    robust = OdomConfig(map=MapConfig(clear_cell=1.0 if not flow_sees_walker else 0.0, confirm=1))  # one rule each
     before, start, left = walk(legacy, flow_sees_walker=flow_sees_walker)
     after, _, _ = walk(robust, flow_sees_walker=flow_sees_walker)
     world = lambda odometry: np.asarray(odometry.map.points, np.float64)  # odometry frame = first scan = world

@@ -87,7 +87,7 @@ class Odometry:
     def __init__(self, config: OdomConfig) -> None:
         self.config = config
         self.method = OdomMethod(config.method)
-        self.map = VoxelMap(config.map)
+        self.map = VoxelMap(self.map_config(config.map))
         self.voxel: float | None = None  # the scan voxel, chosen on the first scan
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
@@ -135,8 +135,14 @@ class Odometry:
                 break
             scale *= 0.6
         if scale != 1.0:
-            self.map = VoxelMap(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale}))
+            self.map = VoxelMap(self.map_config(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale})))
         return self.config.voxel * scale
+
+    def map_config(self, config: MapConfig) -> MapConfig:
+        """The map's config: as given for ssf; the whole-scan variants map every voxel at once, never cleared."""
+        if self.method is OdomMethod.SSF:
+            return config
+        return config.model_copy(update={"confirm": 1, "clear_cell": 0.0, "max_speed": 0.0})
 
     def update_map(self, mapped: np.ndarray, scan: np.ndarray) -> None:
         """Insert the mapped points (with normals from their neighbours in the scan) at the current pose; for ssf the

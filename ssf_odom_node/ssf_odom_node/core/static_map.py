@@ -31,17 +31,17 @@ class MapConfig(Section):
                            "share of the map is new since the last build (0: every scan)")
     max_speed: float = Field(0.6, ge=0.0, description="ssf: static points whose own motion (their flow minus the "
                              "ego motion the static flow gives) is faster than this stay out of the map (m/s; 0: off)")
-    confirm: int = Field(1, ge=1, description="ssf: scans that must observe a voxel static before it joins the map "
-                         "(and the registration target); 1: at once")
-    confirm_window: int = Field(10, ge=1, description="ssf: an unconfirmed voxel is forgotten this many scans after "
+    confirm: int = Field(8, ge=1, description="ssf: scans that must observe a voxel static before it joins the map "
+                         "that is published and kept (registration uses every voxel that is held); 1: at once")
+    confirm_window: int = Field(15, ge=1, description="ssf: an unconfirmed voxel is forgotten this many scans after "
                                 "it was first observed")
-    max_evidence: int = Field(4, ge=1, description="ssf: a voxel's evidence grows by one per scan that observes it "
+    max_evidence: int = Field(8, ge=1, description="ssf: a voxel's evidence grows by one per scan that observes it "
                               "static, up to this, and shrinks by one per scan whose beams pass through it; at zero "
                               "it leaves the map")
-    clear_cell: float = Field(1.0, ge=0.0, le=10.0, description="ssf: angular cell (deg) of the range image that "
-                              "clears the map: a voxel is seen through when the nearest return in its cell lies "
-                              "beyond it by more than the voxel and the cell's depth spread on its surface (0: no "
-                              "clearing)")
+    clear_cell: float = Field(1.0, ge=0.0, le=10.0, description="ssf: angular cell of the range image that clears "
+                              "the map, in units of the scan's mean angular spacing (measured on the first scan): a "
+                              "voxel is seen through when the nearest return in its cell lies beyond it by more than "
+                              "the voxel and the cell's depth spread on its surface (0: no clearing)")
 
     @model_validator(mode="after")
     def _evidence_reaches_confirmation(self) -> MapConfig:
@@ -53,6 +53,15 @@ class MapConfig(Section):
     def max_bytes(self) -> int:
         """The memory the map may hold at most."""
         return self.max_voxels * BYTES_PER_VOXEL
+
+
+def angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
+    """Mean angular spacing (rad) of a scan's returns (sensor frame): the square root of the azimuth x elevation area
+    they cover (cells of `cell` that hold a return) per return."""
+    if len(points) == 0:
+        return cell
+    _, index = RangeImage.project(points, cell, int(np.ceil(2 * np.pi / cell)))
+    return float(np.sqrt(len(np.unique(index)) * cell ** 2 / len(points)))
 
 
 def voxel_codes(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -114,11 +123,12 @@ class VoxelMap:
         self.confirmed = np.zeros(0, bool)
         self.scans = 0  # observations so far
         self.cleared = 0  # voxels removed by free-space clearing so far
+        self.cell: float | None = None  # rad, the clearing range image's cell (from the first scan cleared with)
         self._target: PlaneTarget | None = None
         self._changed_since_build = 0
 
     def __len__(self) -> int:
-        return int(self.confirmed.sum())
+        return len(self.codes)
 
     @property
     def points(self) -> np.ndarray:
@@ -150,7 +160,6 @@ class VoxelMap:
         self.evidence[held] = np.minimum(self.evidence[held] + 1, self.config.max_evidence)
         newly = held & ~self.confirmed & (self.evidence >= self.config.confirm)
         self.confirmed |= newly
-        self._changed_since_build += int(newly.sum())
         return first[~np.isin(codes, self.codes[held], assume_unique=True)]
 
     def insert(self, points: np.ndarray, normals: np.ndarray, centre: np.ndarray) -> int:
@@ -165,7 +174,7 @@ class VoxelMap:
             self.first = np.concatenate([self.first, np.full(len(new), self.scans, np.int32)])
             self.confirmed = np.concatenate([self.confirmed, np.full(len(new), self.config.confirm <= 1)])
         self.crop(centre)
-        self._changed_since_build += len(new) if self.config.confirm <= 1 else 0
+        self._changed_since_build += len(new)
         return len(new)
 
     def clear(self, scan: np.ndarray, pose: np.ndarray) -> int:
@@ -176,7 +185,9 @@ class VoxelMap:
         if self.config.confirm > 1:
             keep &= self.confirmed | (self.scans - self.first < self.config.confirm_window)
         if self.config.clear_cell > 0 and len(scan) and len(self.codes):
-            image = RangeImage.build(scan, np.radians(self.config.clear_cell))
+            if self.cell is None:
+                self.cell = self.config.clear_cell * angular_spacing(scan)
+            image = RangeImage.build(scan, self.cell)
             inverse = invert(pose)
             local = self.stored_points @ inverse[:3, :3].T.astype(np.float32) + inverse[:3, 3].astype(np.float32)
             near = np.flatnonzero(np.einsum("ij,ij->i", local, local) < image.farthest ** 2)
@@ -187,7 +198,7 @@ class VoxelMap:
             keep[gone] = False
             self.cleared += len(gone)
         if not keep.all():
-            self._changed_since_build += int((~keep & self.confirmed).sum())
+            self._changed_since_build += int((~keep).sum())
             self._select(keep)
         return int((~keep).sum())
 
@@ -208,9 +219,9 @@ class VoxelMap:
         self.confirmed = self.confirmed[keep]
 
     def target(self) -> PlaneTarget:
-        """The confirmed map as a registration target; its KD-tree is rebuilt once `refresh` of the map changed
-        (voxels that left the window stay in it until then: they are still true surfaces)."""
+        """Every voxel held (confirmed or not) as a registration target; its KD-tree is rebuilt once `refresh` of the
+        map changed (voxels that left the window stay in it until then: they are still true surfaces)."""
         if self._target is None or self._changed_since_build > self.config.refresh * max(len(self._target), 1):
-            self._target = PlaneTarget.build(self.points, self.normals)
+            self._target = PlaneTarget.build(self.stored_points, self.stored_normals)
             self._changed_since_build = 0
         return self._target
