@@ -84,19 +84,20 @@ class RangeImage(NamedTuple):
         """The range image of a scan (sensor frame)."""
         columns, rows = int(np.ceil(2 * np.pi / cell)), int(np.ceil(np.pi / cell)) + 1
         distance, index = cls.project(points, cell, columns)
-        nearest = np.full(rows * columns, np.inf)
+        nearest = np.full(rows * columns, np.inf, np.float32)
         np.minimum.at(nearest, index, distance)
         nearest[np.isinf(nearest)] = 0.0
         return cls(nearest, cell, columns, float(distance.max(initial=0.0)))
 
     @staticmethod
     def project(points: np.ndarray, cell: float, columns: int) -> tuple[np.ndarray, np.ndarray]:
-        """Range of each point (sensor frame) and the index of its cell."""
-        points = np.asarray(points, dtype=np.float64)
+        """Range of each point (sensor frame) and the index of its cell (float32: the whole scan, every scan)."""
+        points = np.asarray(points, dtype=np.float32)
         flat = np.hypot(points[:, 0], points[:, 1])
         distance = np.hypot(flat, points[:, 2])
-        column = np.floor((np.arctan2(points[:, 1], points[:, 0]) + np.pi) / cell).astype(np.int64) % columns
-        row = np.floor((np.arctan2(points[:, 2], flat) + np.pi / 2) / cell).astype(np.int64)
+        per_cell = np.float32(1.0 / cell)
+        column = ((np.arctan2(points[:, 1], points[:, 0]) + np.float32(np.pi)) * per_cell).astype(np.int64) % columns
+        row = ((np.arctan2(points[:, 2], flat) + np.float32(np.pi / 2)) * per_cell).astype(np.int64)
         return distance, row * columns + column
 
     def seen_through(self, points: np.ndarray, normals: np.ndarray, margin: float) -> np.ndarray:
