@@ -162,7 +162,7 @@ def test_inputs_are_checked():
 
 
 def test_the_map_stays_under_its_memory_cap_and_window():
-    config = MapConfig(voxel=0.5, radius=30.0, max_voxels=2000)
+    config = MapConfig(voxel=0.5, radius=30.0, max_voxels=2000, confirm=1)
     voxel_map = VoxelMap(config)
     rng = np.random.default_rng(0)
     for step in range(20):

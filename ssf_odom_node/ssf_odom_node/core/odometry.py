@@ -87,7 +87,7 @@ class Odometry:
     def __init__(self, config: OdomConfig) -> None:
         self.config = config
         self.method = OdomMethod(config.method)
-        self.map = VoxelMap(config.map)
+        self.map = VoxelMap(self.map_config(config.map))
         self.voxel: float | None = None  # the scan voxel, chosen on the first scan
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
@@ -108,10 +108,11 @@ class Odometry:
         alignment, source = self.refine(registered, weights, by_flow, by_velocity)
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
-        # 5. the registered points join the map at the new pose (for ssf: where the segmentation sees)
-        self.update_map(self.mapped_points(registered))
-        # 6. the motion to the next scan from the static points and their flow (weighted Kabsch)
+        # 5. the motion to the next scan from the static points and their flow (weighted Kabsch)
         self.next_motion = self.flow_motion(points, flow, dynamic)
+        # 6. the registered points join the map at the new pose (for ssf: where the segmentation sees, points that do
+        # not move on their own, and the scan's beams clear what they pass through)
+        self.update_map(self.mapped_points(points, flow, dynamic), frame.points)
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
                         None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
                         alignment.rmse, source, len(self.map), len(registered))
@@ -134,14 +135,25 @@ class Odometry:
                 break
             scale *= 0.6
         if scale != 1.0:
-            self.map = VoxelMap(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale}))
+            self.map = VoxelMap(self.map_config(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale})))
         return self.config.voxel * scale
 
-    def update_map(self, registered: np.ndarray) -> None:
-        """Insert the registered points (with normals from their neighbours in the scan) at the current pose."""
-        moved = transform_points(self.pose, registered)
-        new = self.map.new_voxels(moved)
-        normals = estimate_normals(registered, self.config.normal_neighbours, new) @ self.pose[:3, :3].T
+    def map_config(self, config: MapConfig) -> MapConfig:
+        """The map's config: as given for ssf; the whole-scan variants map every voxel at once, never cleared."""
+        if self.method is OdomMethod.SSF:
+            return config
+        return config.model_copy(update={"confirm": 1, "clear_cell": 0.0, "max_speed": 0.0})
+
+    def update_map(self, mapped: np.ndarray, scan: np.ndarray) -> None:
+        """Insert the mapped points (with normals from their neighbours in the scan) at the current pose; for ssf the
+        voxels they hit gain evidence and the whole scan's beams (sensor frame) clear the voxels they pass through."""
+        moved = transform_points(self.pose, mapped)
+        if self.method is OdomMethod.SSF:
+            new = self.map.observe(moved)
+            self.map.clear(self.in_range(np.asarray(scan, np.float32)[:, :3], self.config.min_range), self.pose)
+        else:
+            new = self.map.new_voxels(moved)
+        normals = estimate_normals(mapped, self.config.normal_neighbours, new) @ self.pose[:3, :3].T
         self.map.insert(moved[new], normals, self.pose[:3, 3])
 
     def check(self, frame: OdomInput) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -197,11 +209,23 @@ class Odometry:
             return points[static], 1.0 - dynamic[static]
         return points, None
 
-    def mapped_points(self, registered: np.ndarray) -> np.ndarray:
-        """The registered points that join the map: for ssf only those within the segmentation's range."""
+    def mapped_points(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None) -> np.ndarray:
+        """The points that join the map: all of them, or for ssf the static ones within the segmentation's range
+        whose own motion (flow less the ego motion of the static flow) is below map.max_speed."""
         if self.method is not OdomMethod.SSF:
-            return registered
-        return registered[np.einsum("ij,ij->i", registered[:, :2], registered[:, :2]) <= self.config.ssf_range ** 2]
+            return points
+        keep = np.einsum("ij,ij->i", points[:, :2], points[:, :2]) <= self.config.ssf_range ** 2
+        if dynamic is not None:
+            keep &= dynamic <= self.config.static_threshold
+        if flow is not None and self.next_motion is not None and self.config.map.max_speed > 0:
+            own = points + flow - (points @ self.next_motion[:3, :3].T + self.next_motion[:3, 3])
+            keep &= np.einsum("ij,ij->i", own, own) <= (self.config.map.max_speed * self.config.scan_period) ** 2
+        return points[keep]
+
+    @staticmethod
+    def in_range(points: np.ndarray, near: float) -> np.ndarray:
+        """The points farther than `near` (m, horizontally) from the sensor."""
+        return points[np.einsum("ij,ij->i", points[:, :2], points[:, :2]) >= near ** 2]
 
     def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
                by_velocity: np.ndarray) -> tuple[Alignment, str]:
@@ -209,7 +233,7 @@ class Odometry:
         prediction; where it contradicts constant velocity (or there is no flow), a search from constant velocity
         too, and the result that matches more points wins."""
         if len(self.map) == 0:
-            return Alignment(by_velocity, np.zeros((6, 6)), 0, 0.0, 0), "start"
+            return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
         if by_flow is not None:
             from_flow = point_to_plane(points, weights, target, by_flow, self.config.refine_gates, self.config.kernel)

@@ -1,32 +1,67 @@
 """The static map: one point (with its normal) per voxel, in the odometry frame, bounded to a local window around
-the vehicle and to a voxel cap, so its memory never grows with the route."""
+the vehicle and to a voxel cap, so its memory never grows with the route. Each voxel carries evidence: scans that
+observe it static add to it, scans whose beams pass through it (free space) take from it, and a voxel joins the map
+only once enough scans confirmed it; what moving objects the segmentation missed leave behind is cleared."""
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from ssf_common.config import Section
+from ssf_common.geometry.se3 import invert
 from ssf_odom_node.core.registration import PlaneTarget
 
 KEY_BITS = 21  # per axis: +-1M voxels, packed into one int64 code
 KEY_OFFSET = 1 << (KEY_BITS - 1)
-BYTES_PER_VOXEL = 3 * 4 + 3 * 4 + 8  # float32 point, float32 normal, int64 code
+BYTES_PER_VOXEL = 3 * 4 + 3 * 4 + 8 + 2 + 4 + 1  # float32 point and normal, int64 code, evidence, first scan, confirmed
+MAX_SLOPE = 20.0  # tan of the most grazing incidence the clearing margin allows for (~87 deg)
 
 
 class MapConfig(Section):
-    """Voxel size and the bounds of the local static map."""
+    """Voxel size, the bounds of the local static map and the evidence a voxel needs to stay in it."""
 
     voxel: float = Field(0.8, gt=0.0, description="voxel edge (m): the map keeps one point per voxel")
     radius: float = Field(60.0, gt=0.0, description="voxels farther than this from the vehicle are dropped (m)")
-    max_voxels: int = Field(60000, ge=100, description="cap on stored voxels (the farthest go first)")
+    max_voxels: int = Field(60000, ge=100, description="cap on stored voxels, unconfirmed ones included (the "
+                            "farthest go first)")
     refresh: float = Field(0.1, ge=0.0, le=1.0, description="the registration target (KD-tree) is rebuilt once this "
                            "share of the map is new since the last build (0: every scan)")
+    max_speed: float = Field(0.6, ge=0.0, description="ssf: static points whose own motion (their flow minus the "
+                             "ego motion the static flow gives) is faster than this stay out of the map (m/s; 0: off)")
+    confirm: int = Field(8, ge=1, description="ssf: scans that must observe a voxel static before it joins the map "
+                         "that is published and kept (registration uses every voxel that is held); 1: at once")
+    confirm_window: int = Field(15, ge=1, description="ssf: an unconfirmed voxel is forgotten this many scans after "
+                                "it was first observed")
+    max_evidence: int = Field(8, ge=1, description="ssf: a voxel's evidence grows by one per scan that observes it "
+                              "static, up to this, and shrinks by one per scan whose beams pass through it; at zero "
+                              "it leaves the map")
+    clear_cell: float = Field(1.0, ge=0.0, le=10.0, description="ssf: angular cell of the range image that clears "
+                              "the map, in units of the scan's mean angular spacing (measured on the first scan): a "
+                              "voxel is seen through when the nearest return in its cell lies beyond it by more than "
+                              "the voxel and the cell's depth spread on its surface (0: no clearing)")
+
+    @model_validator(mode="after")
+    def _evidence_reaches_confirmation(self) -> MapConfig:
+        if self.confirm > self.max_evidence:
+            raise ValueError(f"map.confirm ({self.confirm}) must not exceed map.max_evidence ({self.max_evidence})")
+        return self
 
     @property
     def max_bytes(self) -> int:
         """The memory the map may hold at most."""
         return self.max_voxels * BYTES_PER_VOXEL
+
+
+def angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
+    """Mean angular spacing (rad) of a scan's returns (sensor frame): the square root of the azimuth x elevation area
+    they cover (cells of `cell` that hold a return) per return."""
+    if len(points) == 0:
+        return cell
+    _, index = RangeImage.project(points, cell, int(np.ceil(2 * np.pi / cell)))
+    return float(np.sqrt(len(np.unique(index)) * cell ** 2 / len(points)))
 
 
 def voxel_codes(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -36,56 +71,158 @@ def voxel_codes(points: np.ndarray, voxel: float) -> np.ndarray:
     return (keys[:, 0] << (2 * KEY_BITS)) | (keys[:, 1] << KEY_BITS) | keys[:, 2]
 
 
+class RangeImage(NamedTuple):
+    """The nearest return of a scan in each angular cell (azimuth x elevation; 0 where the cell holds none)."""
+
+    nearest: np.ndarray  # (rows * columns,) m
+    cell: float  # rad
+    columns: int
+    farthest: float  # m, the farthest return
+
+    @classmethod
+    def build(cls, points: np.ndarray, cell: float) -> RangeImage:
+        """The range image of a scan (sensor frame)."""
+        columns, rows = int(np.ceil(2 * np.pi / cell)), int(np.ceil(np.pi / cell)) + 1
+        distance, index = cls.project(points, cell, columns)
+        nearest = np.full(rows * columns, np.inf, np.float32)
+        np.minimum.at(nearest, index, distance)
+        nearest[np.isinf(nearest)] = 0.0
+        return cls(nearest, cell, columns, float(distance.max(initial=0.0)))
+
+    @staticmethod
+    def project(points: np.ndarray, cell: float, columns: int) -> tuple[np.ndarray, np.ndarray]:
+        """Range of each point (sensor frame) and the index of its cell (float32: the whole scan, every scan)."""
+        points = np.asarray(points, dtype=np.float32)
+        flat = np.hypot(points[:, 0], points[:, 1])
+        distance = np.hypot(flat, points[:, 2])
+        per_cell = np.float32(1.0 / cell)
+        column = ((np.arctan2(points[:, 1], points[:, 0]) + np.float32(np.pi)) * per_cell).astype(np.int64) % columns
+        row = ((np.arctan2(points[:, 2], flat) + np.float32(np.pi / 2)) * per_cell).astype(np.int64)
+        return distance, row * columns + column
+
+    def seen_through(self, points: np.ndarray, normals: np.ndarray, margin: float) -> np.ndarray:
+        """(N,) bool: points (sensor frame) whose cell's nearest return lies beyond them by more than `margin` plus
+        the depth the cell spans on their surface (normals, sensor frame) at their incidence."""
+        distance, index = self.project(points, self.cell, self.columns)
+        behind = self.nearest[index]
+        incidence = np.abs(np.einsum("ij,ij->i", normals, points)) / np.maximum(distance, 1e-9)
+        slope = np.minimum(np.sqrt(np.maximum(1.0 - incidence ** 2, 0.0)) / np.maximum(incidence, 1e-9), MAX_SLOPE)
+        return behind > distance + margin + distance * self.cell * slope
+
+
 class VoxelMap:
-    """A local voxel map of points with normals; `target()` is what a scan is registered against."""
+    """A local voxel map of points with normals and their evidence; `target()` is what a scan is registered
+    against, `points`/`normals` are the confirmed voxels."""
 
     def __init__(self, config: MapConfig) -> None:
         self.config = config
-        self.points = np.zeros((0, 3), np.float32)
-        self.normals = np.zeros((0, 3), np.float32)
+        self.stored_points = np.zeros((0, 3), np.float32)
+        self.stored_normals = np.zeros((0, 3), np.float32)
         self.codes = np.zeros(0, np.int64)
+        self.evidence = np.zeros(0, np.int16)  # scans that observed the voxel static, less those that saw through it
+        self.first = np.zeros(0, np.int32)  # the scan that first observed it
+        self.confirmed = np.zeros(0, bool)
+        self.scans = 0  # observations so far
+        self.cleared = 0  # voxels removed by free-space clearing so far
+        self.cell: float | None = None  # rad, the clearing range image's cell (from the first scan cleared with)
         self._target: PlaneTarget | None = None
-        self._added_since_build = 0
+        self._changed_since_build = 0
 
     def __len__(self) -> int:
         return len(self.codes)
 
     @property
+    def points(self) -> np.ndarray:
+        """(V, 3) the confirmed voxels' points (odometry frame)."""
+        return self.stored_points if self.confirmed.all() else self.stored_points[self.confirmed]
+
+    @property
+    def normals(self) -> np.ndarray:
+        """(V, 3) the confirmed voxels' normals."""
+        return self.stored_normals if self.confirmed.all() else self.stored_normals[self.confirmed]
+
+    @property
     def nbytes(self) -> int:
         """Memory held by the map's arrays."""
-        return self.points.nbytes + self.normals.nbytes + self.codes.nbytes
+        return sum(array.nbytes for array in (self.stored_points, self.stored_normals, self.codes, self.evidence,
+                                              self.first, self.confirmed))
 
     def new_voxels(self, points: np.ndarray) -> np.ndarray:
         """Indices of the points (odometry frame) that fall in voxels the map does not hold yet, one per voxel."""
         codes, first = np.unique(voxel_codes(points, self.config.voxel), return_index=True)
         return first[~np.isin(codes, self.codes, assume_unique=True)]
 
+    def observe(self, points: np.ndarray) -> np.ndarray:
+        """One scan's static points (odometry frame): the voxels they fall in gain evidence (and are confirmed once
+        they have enough); returns the indices of the points in voxels not held yet, one per voxel."""
+        self.scans += 1
+        codes, first = np.unique(voxel_codes(points, self.config.voxel), return_index=True)
+        held = np.isin(self.codes, codes, assume_unique=True)
+        self.evidence[held] = np.minimum(self.evidence[held] + 1, self.config.max_evidence)
+        newly = held & ~self.confirmed & (self.evidence >= self.config.confirm)
+        self.confirmed |= newly
+        return first[~np.isin(codes, self.codes[held], assume_unique=True)]
+
     def insert(self, points: np.ndarray, normals: np.ndarray, centre: np.ndarray) -> int:
-        """Add points (odometry frame) with their normals in voxels not yet occupied, then crop to the window
-        around `centre`; returns how many voxels were added."""
+        """Add points (odometry frame) with their normals in voxels not yet occupied (one observation each), then
+        crop to the window around `centre`; returns how many voxels were added."""
         new = self.new_voxels(points)
         if len(new):
-            self.points = np.concatenate([self.points, np.asarray(points, np.float32)[new]])
-            self.normals = np.concatenate([self.normals, np.asarray(normals, np.float32)[new]])
+            self.stored_points = np.concatenate([self.stored_points, np.asarray(points, np.float32)[new]])
+            self.stored_normals = np.concatenate([self.stored_normals, np.asarray(normals, np.float32)[new]])
             self.codes = np.concatenate([self.codes, voxel_codes(np.asarray(points)[new], self.config.voxel)])
+            self.evidence = np.concatenate([self.evidence, np.ones(len(new), np.int16)])
+            self.first = np.concatenate([self.first, np.full(len(new), self.scans, np.int32)])
+            self.confirmed = np.concatenate([self.confirmed, np.full(len(new), self.config.confirm <= 1)])
         self.crop(centre)
-        self._added_since_build += len(new)
+        self._changed_since_build += len(new)
         return len(new)
+
+    def clear(self, scan: np.ndarray, pose: np.ndarray) -> int:
+        """Free-space clearing by one scan (sensor frame, at `pose`: odometry <- sensor): voxels its beams pass
+        through lose evidence, and those left with none (and unconfirmed ones past their window) leave the map;
+        returns how many left."""
+        keep = np.ones(len(self.codes), bool)
+        if self.config.confirm > 1:
+            keep &= self.confirmed | (self.scans - self.first < self.config.confirm_window)
+        if self.config.clear_cell > 0 and len(scan) and len(self.codes):
+            if self.cell is None:
+                self.cell = self.config.clear_cell * angular_spacing(scan)
+            image = RangeImage.build(scan, self.cell)
+            inverse = invert(pose)
+            local = self.stored_points @ inverse[:3, :3].T.astype(np.float32) + inverse[:3, 3].astype(np.float32)
+            near = np.flatnonzero(np.einsum("ij,ij->i", local, local) < image.farthest ** 2)
+            through = near[image.seen_through(local[near], self.stored_normals[near] @ pose[:3, :3].astype(np.float32),
+                                              self.config.voxel * np.sqrt(3.0))]
+            self.evidence[through] -= 1
+            gone = through[self.evidence[through] <= 0]
+            keep[gone] = False
+            self.cleared += len(gone)
+        if not keep.all():
+            self._changed_since_build += int((~keep).sum())
+            self._select(keep)
+        return int((~keep).sum())
 
     def crop(self, centre: np.ndarray) -> None:
         """Keep the voxels within the radius of `centre`, and at most max_voxels of them (nearest first)."""
-        distance = np.linalg.norm(self.points[:, :2] - np.asarray(centre, np.float32)[:2], axis=1)
+        distance = np.linalg.norm(self.stored_points[:, :2] - np.asarray(centre, np.float32)[:2], axis=1)
         keep = distance <= self.config.radius
         if keep.sum() > self.config.max_voxels:
             keep = np.zeros(len(distance), bool)
             keep[np.argpartition(distance, self.config.max_voxels - 1)[: self.config.max_voxels]] = True
         if not keep.all():
-            self.points, self.normals, self.codes = self.points[keep], self.normals[keep], self.codes[keep]
+            self._select(keep)
+
+    def _select(self, keep: np.ndarray) -> None:
+        """Keep only the voxels `keep` marks."""
+        self.stored_points, self.stored_normals = self.stored_points[keep], self.stored_normals[keep]
+        self.codes, self.evidence, self.first = self.codes[keep], self.evidence[keep], self.first[keep]
+        self.confirmed = self.confirmed[keep]
 
     def target(self) -> PlaneTarget:
-        """The map as a registration target; its KD-tree is rebuilt once `refresh` of the map is new (voxels that
-        left the window stay in it until then: they are still true surfaces)."""
-        if self._target is None or self._added_since_build > self.config.refresh * max(len(self._target), 1):
-            self._target = PlaneTarget.build(self.points, self.normals)
-            self._added_since_build = 0
+        """Every voxel held (confirmed or not) as a registration target; its KD-tree is rebuilt once `refresh` of the
+        map changed (voxels that left the window stay in it until then: they are still true surfaces)."""
+        if self._target is None or self._changed_since_build > self.config.refresh * max(len(self._target), 1):
+            self._target = PlaneTarget.build(self.stored_points, self.stored_normals)
+            self._changed_since_build = 0
         return self._target
