@@ -49,7 +49,7 @@ def semantic_flow(index: int) -> SemanticFlow:
 
 @pytest.fixture
 def graph():
-    node = OdomNode(argv=["--ros-args", "-p", "map_period_s:=0.2", "-p", "report_period_s:=60.0",
+    node = OdomNode(argv=["--ros-args", "-p", "map_period_s:=0.2", "-p", "report_period_s:=60.0", "-p", "map.confirm:=2",
                           "-p", "mount:=[0.0, 0.0, 1.8, 0.0, 0.0, 0.0]"])
     node.spin_in_thread()
     probe = Node("probe")
