@@ -41,6 +41,7 @@ class NodeRow:
     cpu_share: float  # of one core, mean over the window
     rss_mb: float  # at the end
     rss_slope_mb_per_10min: float  # over the second half of the window (the first fills caches and pools)
+    rss_mb_per_minute: list[float] = field(default_factory=list)  # RSS at the end of each minute of the window
 
 
 @dataclass
@@ -223,8 +224,9 @@ def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]]
             sum(value for key, value in numbers.items() if key in ("estimates", "segmentations", "steps", "ticks",
                                                                    "iterations")))
         dropped = int(sum(value for key, value in numbers.items() if key.endswith("_dropped")))
+        minutes = [float(rss[times <= t][-1]) for t in np.arange(times[0] + 60.0, times[-1] + 1e-9, 60.0)]
         rows.append(NodeRow(label, numbers.get("processing_ms_median"), numbers.get("processing_ms_p95"), answered,
-                            dropped, float(cpu.mean() / 100.0), float(rss[-1]), slope))
+                            dropped, float(cpu.mean() / 100.0), float(rss[-1]), slope, minutes))
     return rows
 
 

@@ -56,6 +56,8 @@ def test_node_rows_combine_diagnostics_and_process_samples():
     assert row.answered == 5 and row.dropped == 1 and row.processing_ms_median == 40.0
     assert row.cpu_share == pytest.approx(0.70) and row.rss_mb == pytest.approx(153.0)
     assert row.rss_slope_mb_per_10min == pytest.approx(6.0, rel=0.05)
+    assert row.rss_mb_per_minute[0] == pytest.approx(150.0) and row.rss_mb_per_minute[-1] == pytest.approx(152.5)
+    assert len(row.rss_mb_per_minute) == 9  # 70 s, 130 s, ... 550 s
 
 
 def test_stage_stats_travel_as_diagnostics():
