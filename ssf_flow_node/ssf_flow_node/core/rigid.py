@@ -143,7 +143,8 @@ class RigidFlowEstimator:
         #    that stay still although parts of them changed are clustered finer and tried again
         belief = None if masked is None else masked[above1]
         previous = None if state.motion is None else state.motion[above1]
-        clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous)
+        clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous,
+                                          points1[above1])
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
         #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
@@ -358,6 +359,11 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
     """Per label, residuals and unexplained share of its moved points against their component in scan t+1
     (`allowed`: each point's component)."""
     point, plane = surface_distance(moved, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    return fit_of(point, plane, labels, count, config)
+
+
+def fit_of(point: np.ndarray, plane: np.ndarray, labels: np.ndarray, count: int, config: RigidConfig) -> Fit:
+    """Per label, the fit of its points' distances to the points and surfaces of scan t+1 (plane NaN: nothing near)."""
     near = np.isfinite(plane)
     sizes = np.maximum(np.bincount(labels, minlength=count), 1)
     return Fit(np.bincount(labels, point, count) / sizes,
@@ -368,9 +374,10 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
                     belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
                     tree: cKDTree | None = None, candidates: np.ndarray | None = None,
-                    previous: np.ndarray | None = None) -> ClusterMotions:
+                    previous: np.ndarray | None = None, sensed: np.ndarray | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
-    standing still, and standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
+    standing still (as the moved sensor samples a still surface: `sensed`, the points where scan t saw them), and
+    standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
     count = clusters.count
     yaw, translation = np.zeros(count), np.zeros((count, 3))
     if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
@@ -411,8 +418,9 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                                  lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed,
                                                                        config, count, normals2, points2), max_yaw)
         moved = yaw_translate(source, yaw[labels], translation[labels])
-    lifted = source + np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
-    fit_static = fit_quality(lifted, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
+    fit_static = static_fit(source + height, None if sensed is None else sensed[members] + height, labels, tree,
+                            clusters.labels2, allowed, config, count, normals2, points2)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
     keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
@@ -430,6 +438,37 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     return ClusterMotions(yaw, translation, moving)
 
 
+def static_fit(still: np.ndarray, sensed: np.ndarray | None, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
+               allowed: np.ndarray, config: RigidConfig, count: int, normals2: np.ndarray | None,
+               points2: np.ndarray) -> Fit:
+    """How well standing still explains each cluster: each point where it was, or where the sensor's beam that saw
+    it lands again (`sensed`), whichever lies closer to the points and surfaces of scan t+1. The latter only where the sensor slid along the
+    surfaces (standing still leaves most of the cluster's points on them) and scan t+1 samples them, along the slide,
+    no finer than half of it (far walls and parked cars at grazing angles): only there can the moved beams shift a still surface's points by
+    as much as the slide. A car beside or ahead at the ego's speed is sampled finer, or not slid along."""
+    point, plane = surface_distance(still, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    if sensed is None or len(points2) < 2:
+        return fit_of(point, plane, labels, count, config)
+    resampled, resampled_plane = surface_distance(sensed, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    slide = np.linalg.norm(sensed - still, axis=1)
+    on_surface = np.nan_to_num(plane, nan=np.inf) < 0.5 * slide
+    spacing = spacing_along(points2, tree, tree.query(still)[1], (sensed - still) / np.maximum(slide, 1e-9)[:, None])
+    closer = (resampled < point) & (np.nan_to_num(resampled_plane, nan=np.inf) <= np.nan_to_num(plane, nan=np.inf))
+    along = (closer & (spacing >= 0.5 * slide)
+             & (label_means(on_surface.astype(np.float64), labels, count) > 0.5)[labels])
+    return fit_of(np.where(along, resampled, point), np.where(along, resampled_plane, plane), labels, count, config)
+
+
+def spacing_along(points: np.ndarray, tree: cKDTree, index: np.ndarray, direction: np.ndarray,
+                  neighbours: int = 8) -> np.ndarray:
+    """Per query, how far the points of the tree lie apart along `direction` at points[index]: the distance to the
+    nearest of its neighbours within 45 degrees of that direction (either way), else to the farthest neighbour."""
+    gaps, near = tree.query(points[index], k=min(neighbours + 1, len(points)))
+    offsets = points[near[:, 1:]] - points[index][:, None]
+    aligned = np.abs(np.einsum("nkj,nj->nk", offsets, direction)) >= np.sqrt(0.5) * gaps[:, 1:]
+    return np.where(aligned.any(axis=1), np.where(aligned, gaps[:, 1:], np.inf).min(axis=1), gaps[:, -1])
+
+
 def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw: np.ndarray, translation: np.ndarray,
               fit: Fit, quality, max_yaw: float) -> tuple[np.ndarray, np.ndarray, Fit]:
     """Per cluster, the new motion or the one its points had before (as a planar rigid fit of their displacements),
@@ -444,16 +483,19 @@ def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw:
 
 
 def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, config: RigidConfig,
-                  belief: np.ndarray | None, previous: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
+                  belief: np.ndarray | None, previous: np.ndarray | None = None,
+                  sensed: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
     """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
-    surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own."""
+    surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own (`sensed`:
+    the points as scan t saw them, before the ego compensation)."""
     points2, normals2, tree = surfaces.points, surfaces.normals, surfaces.tree
     _, still = surface_distance(points1, tree, points2, normals2, config.residual_cap,
                                 clusters.parent[clusters.labels1], clusters.labels2)
     near = np.isfinite(still)
     floors = noise_floors(surfaces, clusters, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
-    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous)
+    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous,
+                              sensed=sensed)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
     changed = still > floors[clusters.parent[clusters.labels1]]
@@ -477,7 +519,7 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
     # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
     fresh = (np.arange(split.count) >= offset) & (
         label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
-    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous)
+    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous, sensed)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
                                  np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
