@@ -420,7 +420,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         moved = yaw_translate(source, yaw[labels], translation[labels])
     height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
     fit_static = static_fit(source + height, None if sensed is None else sensed[members] + height, labels, tree,
-                            clusters.labels2, allowed, config, count, normals2, points2)
+                            clusters.labels2, allowed, config, count, normals2, points2, floors[allowed])
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
     keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
@@ -440,23 +440,30 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
 
 def static_fit(still: np.ndarray, sensed: np.ndarray | None, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
                allowed: np.ndarray, config: RigidConfig, count: int, normals2: np.ndarray | None,
-               points2: np.ndarray) -> Fit:
-    """How well standing still explains each cluster: each point where it was, or where the sensor's beam that saw
-    it lands again (`sensed`), whichever lies closer to the points and surfaces of scan t+1. The latter only where the sensor slid along the
-    surfaces (standing still leaves most of the cluster's points on them) and scan t+1 samples them, along the slide,
-    no finer than half of it (far walls and parked cars at grazing angles): only there can the moved beams shift a still surface's points by
-    as much as the slide. A car beside or ahead at the ego's speed is sampled finer, or not slid along."""
+               points2: np.ndarray, floor: np.ndarray) -> Fit:
+    """How well standing still, as the moved sensor samples it again (`sensed`: the points as scan t saw them), explains
+    each cluster (`floor`: each point's noise floor, m)."""
     point, plane = surface_distance(still, tree, points2, normals2, config.residual_cap, allowed, labels2)
     if sensed is None or len(points2) < 2:
         return fit_of(point, plane, labels, count, config)
-    resampled, resampled_plane = surface_distance(sensed, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    # the sensor slid along the surfaces (standing still leaves most of the cluster on them, unlike a car ahead at the
+    # ego's speed) and scan t+1 samples them along the slide no finer than half of it (far walls at grazing angles,
+    # unlike a car beside us at the ego's speed): there its beams land on a still surface's points up to a slide away
+    resampled, resampled_plane = surface_distance(sensed, tree, points2, normals2, config.residual_cap, allowed,
+                                                  labels2)
     slide = np.linalg.norm(sensed - still, axis=1)
     on_surface = np.nan_to_num(plane, nan=np.inf) < 0.5 * slide
     spacing = spacing_along(points2, tree, tree.query(still)[1], (sensed - still) / np.maximum(slide, 1e-9)[:, None])
-    closer = (resampled < point) & (np.nan_to_num(resampled_plane, nan=np.inf) <= np.nan_to_num(plane, nan=np.inf))
-    along = (closer & (spacing >= 0.5 * slide)
-             & (label_means(on_surface.astype(np.float64), labels, count) > 0.5)[labels])
-    return fit_of(np.where(along, resampled, point), np.where(along, resampled_plane, plane), labels, count, config)
+    slid = (spacing >= 0.5 * slide) & (label_means(on_surface.astype(np.float64), labels, count) > 0.5)[labels]
+    # each point where it was, or where the beam that saw it lands again if that lies closer to the points of scan
+    # t+1 and no farther from its surfaces (beyond the noise floor)
+    along = slid & (resampled < point) & (np.nan_to_num(resampled_plane, nan=np.inf)
+                                          <= np.maximum(np.nan_to_num(plane, nan=np.inf), floor))
+    point, plane = np.where(along, resampled, point), np.where(along, resampled_plane, plane)
+    # in clusters the resampling explains, a beam that now finds nothing passed the surface's end: no evidence
+    passed = ((label_means(along.astype(np.float64), labels, count) >= 0.5)[labels] & np.isnan(resampled_plane)
+              & ~(plane <= config.inlier_gate))
+    return fit_of(point, np.where(passed, 0.0, plane), labels, count, config)
 
 
 def spacing_along(points: np.ndarray, tree: cKDTree, index: np.ndarray, direction: np.ndarray,
