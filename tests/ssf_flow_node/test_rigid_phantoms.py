@@ -30,9 +30,10 @@ def motion_of(name: str, resampled: bool) -> ClusterMotions:
                            sensed=sensed if resampled else None)
 
 
-def test_a_far_wall_resampled_one_ego_step_along_is_static():
-    assert motion_of("wall", resampled=False).moving[0]  # the points alone: the wall seems to move one ego step
-    still = motion_of("wall", resampled=True)
+@pytest.mark.parametrize("name", ["wall", "wall_end"])
+def test_a_far_wall_resampled_one_ego_step_along_is_static(name):
+    assert motion_of(name, resampled=False).moving[0]  # the points alone: the wall seems to move one ego step
+    still = motion_of(name, resampled=True)
     assert not still.moving[0] and np.all(still.translation == 0.0)
 
 
