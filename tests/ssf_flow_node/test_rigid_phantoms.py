@@ -1,4 +1,5 @@
-"""Far clusters on whole scans: a wall the sensor's beams slide along is not a moving object, a small far car is.
+"""Whole scans: a far wall the sensor's beams slide along is not a moving object, a small far car is, and the lowest
+points of moving objects move with them.
 
 The fixture holds two clusters of the rigid estimator's first pass on simulated whole scans (hdl64e, the ego at
 7.5 m/s): a piece of a building side 64 m away at a grazing angle, whose columns lie 1.6 m apart so that scan t+1
@@ -14,6 +15,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ssf_common.config import build
+from ssf_common.dataset.pairs import PointClass
+from ssf_common.dataset.synthetic import synthetic_pair
+from ssf_common.geometry.ground import height_above_ground
+from ssf_eval.flow.metrics import flow_metrics
+from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 from ssf_flow_node.core.rigid import ClusterMotions, Clusters, RigidConfig, cluster_motions
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "far_clusters.npz"
@@ -44,3 +51,16 @@ def test_a_small_far_car_keeps_its_motion(resampled):
     step = np.load(FIXTURE)["car_step"]
     assert np.linalg.norm(step[:2]) > 0.25  # the car drives at least 2.5 m/s
     assert np.linalg.norm(motion.translation[0, :2] - step[:2]) < 0.1
+
+
+def test_the_lowest_points_of_a_moving_object_move_with_it_and_the_ground_beside_it_stays():
+    """Points within ground_clearance of the ground keep the scene's motion, except in a moving object's footprint."""
+    pair = synthetic_pair(seed=5, agents=12, ego_step=0.8, points=60000)
+    config = build(FlowConfig, WHOLE_SCAN)
+    low = height_above_ground(pair.pc1, config.preprocess.ground_cell) < config.rigid.ground_clearance
+    movers, ground = low & pair.dynamic1, low & (pair.class1 == PointClass.GROUND)
+    assert movers.sum() > 100 and ground.sum() > 10000
+    flow = make_estimator("rigid", config).estimate(pair.pc1, pair.pc2).flow
+    plain = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN, {"rigid": {"footprint": 0.0}})).estimate(pair.pc1, pair.pc2).flow
+    assert flow_metrics(flow[movers], pair.flow[movers]).epe3d < 0.5 * flow_metrics(plain[movers], pair.flow[movers]).epe3d
+    assert flow_metrics(flow[ground], pair.flow[ground]).acc_strict > 0.99

@@ -62,6 +62,9 @@ class RigidConfig(Section):
     min_speed: float = Field(0.5, ge=0.0, description="clusters slower than this (m/s) are static")
     ground_clearance: float = Field(0.08, ge=0.0, description="where the ground is split off, points this close above "
                                     "it (m) are ground and keep the scene's motion; higher ones near a mover share it")
+    footprint: float = Field(0.1, ge=0.0, description="points within ground_clearance of the ground still move with a "
+                             "moving object where one of its sampled points lies within this horizontal distance (m): "
+                             "its wheels and lowest parts, inside its footprint (0: never)")
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
@@ -155,7 +158,9 @@ class RigidFlowEstimator:
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
         state.moved = np.abs(state.motion).max(axis=1) > 0.0
-        state.result = finish(pair, moved - points1, ego, self.preprocess, state.ground1)
+        still = None if state.ground1 is None else state.ground1 & ~under(pair.pc1, points1[state.moved],
+                                                                           self.config.footprint)
+        state.result = finish(pair, moved - points1, ego, self.preprocess, still)
         return state.result
 
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
@@ -199,6 +204,14 @@ class RigidFlowEstimator:
         now = np.zeros(sampled, bool) if dynamic is None else dynamic
         changed = np.count_nonzero(before != now) / max(keep.size, 1)
         return state.base_ego if changed <= self.config.ego_refit else state.matcher.refine(source, state.base_ego, ordered=True)
+
+
+def under(points: np.ndarray, above: np.ndarray, reach: float) -> np.ndarray:
+    """Which points have one of `above` within `reach` (m) horizontally: they lie in its footprint."""
+    inside = np.zeros(points.shape[0], bool)
+    if reach > 0 and len(above):
+        inside = np.isfinite(cKDTree(above[:, :2]).query(points[:, :2], distance_upper_bound=reach)[0])
+    return inside
 
 
 def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
