@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 from typing import NamedTuple
 
 import numpy as np
@@ -106,6 +107,7 @@ class PairState:
     surfaces: Surfaces  # scan t+1 above the ground
     all_surfaces: Surfaces  # all of scan t+1
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
+    low: Plan | None  # those points seen from above
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
@@ -158,8 +160,10 @@ class RigidFlowEstimator:
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
         state.moved = np.abs(state.motion).max(axis=1) > 0.0
-        still = None if state.ground1 is None else state.ground1 & ~under(pair.pc1, points1[state.moved],
-                                                                           self.config.footprint)
+        still = None
+        if state.ground1 is not None:  # the lowest points stay with the ground, except in a mover's footprint
+            still = state.ground1.copy()
+            still[state.low.under(points1[state.moved], self.config.footprint)] = False
         state.result = finish(pair, moved - points1, ego, self.preprocess, still)
         return state.result
 
@@ -182,10 +186,11 @@ class RigidFlowEstimator:
         normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
         every = surfaces_of(points2, normals)
         above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
-        ground1 = None
-        if self.preprocess.remove_ground:  # whole scans: points on the ground never take an object's motion
+        ground1, low = None, None
+        if self.preprocess.remove_ground:  # whole scans: points on the ground take an object's motion only under it
             ground1 = pair.height1 < self.config.ground_clearance
-        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1)
+            low = Plan(pair.pc1, np.flatnonzero(ground1))
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
@@ -206,12 +211,21 @@ class RigidFlowEstimator:
         return state.base_ego if changed <= self.config.ego_refit else state.matcher.refine(source, state.base_ego, ordered=True)
 
 
-def under(points: np.ndarray, above: np.ndarray, reach: float) -> np.ndarray:
-    """Which points have one of `above` within `reach` (m) horizontally: they lie in its footprint."""
-    inside = np.zeros(points.shape[0], bool)
-    if reach > 0 and len(above):
-        inside = np.isfinite(cKDTree(above[:, :2]).query(points[:, :2], distance_upper_bound=reach)[0])
-    return inside
+class Plan:
+    """Points of a scan seen from above: which of them lie within a horizontal distance of other points."""
+
+    def __init__(self, points: np.ndarray, index: np.ndarray) -> None:
+        self.points, self.index = points, index
+        self.tree: cKDTree | None = None  # built when first asked
+
+    def under(self, above: np.ndarray, reach: float) -> np.ndarray:
+        """Indices of the points with one of `above` within `reach` (m) horizontally: in its footprint."""
+        if reach <= 0 or len(above) == 0 or len(self.index) == 0:
+            return np.zeros(0, np.int64)
+        if self.tree is None:
+            self.tree = cKDTree(self.points[self.index, :2])
+        near = self.tree.query_ball_point(above[:, :2], reach, return_sorted=False)
+        return self.index[np.unique(np.fromiter(chain.from_iterable(near), np.int64))]
 
 
 def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
@@ -432,32 +446,44 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                                                        config, count, normals2, points2), max_yaw)
         moved = yaw_translate(source, yaw[labels], translation[labels])
     height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
-    fit_static = static_fit(source + height, None if sensed is None else sensed[members] + height, labels, tree,
-                            clusters.labels2, allowed, config, count, normals2, points2, floors[allowed])
+    fit_static = fit_quality(source + height, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
-    keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
-    keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
     floor = floors[clusters.parent]
-    counted = np.maximum(label_counts(labels, count), 1)  # a mean over few points needs a wider margin
-    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))
-    no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
-                & (fit_moving.unexplained <= config.max_unexplained))
-    closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes
-    explains = no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
-                                      | (fit_moving.residual < keep_point * fit_static.residual)))
-                           | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
-    moving = active & (speed > config.min_speed) & explains
+    counted = np.maximum(label_counts(labels, count), 1)
+    moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
+    if sensed is not None and moving.any():  # standing still once more, as the moved sensor samples it again
+        check = moving[labels]
+        resampled = static_fit(source[check] + height[check], sensed[members][check] + height[check], labels[check],
+                               tree, clusters.labels2, allowed[check], config, count, normals2, points2,
+                               floors[allowed][check])
+        fit_static = Fit(*(np.where(moving, again, first) for again, first in zip(resampled, fit_static)))
+        moving &= explains(fit_moving, fit_static, believed, floor, counted, config)
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving)
 
 
-def static_fit(still: np.ndarray, sensed: np.ndarray | None, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
+def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.ndarray, counted: np.ndarray,
+             config: RigidConfig) -> np.ndarray:
+    """Per cluster, whether its motion explains scan t+1 better than standing still (`floor`: its noise floor, m;
+    `counted`: its points in the fits; `believed`: the mask calls it dynamic)."""
+    keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
+    keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
+    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))  # few points: wider margin
+    no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
+                & (fit_moving.unexplained <= config.max_unexplained))
+    closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes
+    return no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
+                                  | (fit_moving.residual < keep_point * fit_static.residual)))
+                       | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
+
+
+def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
                allowed: np.ndarray, config: RigidConfig, count: int, normals2: np.ndarray | None,
                points2: np.ndarray, floor: np.ndarray) -> Fit:
     """How well standing still, as the moved sensor samples it again (`sensed`: the points as scan t saw them), explains
     each cluster (`floor`: each point's noise floor, m)."""
     point, plane = surface_distance(still, tree, points2, normals2, config.residual_cap, allowed, labels2)
-    if sensed is None or len(points2) < 2:
+    if len(points2) < 2:
         return fit_of(point, plane, labels, count, config)
     # the sensor slid along the surfaces (standing still leaves most of the cluster on them, unlike a car ahead at the
     # ego's speed) and scan t+1 samples them along the slide no finer than half of it (far walls at grazing angles,
