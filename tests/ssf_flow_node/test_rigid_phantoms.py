@@ -2,12 +2,12 @@
 points of moving objects move with them.
 
 The fixture holds three clusters of the rigid estimator's first pass on simulated whole scans (urban_100, tuning
-seeds 4 and 1; hdl64e, the ego at 7.5 to 9 m/s): a piece of a building side 64 m away at a grazing angle, whose columns lie 1.6 m apart so that scan t+1
-samples it one ego step further along (the matcher then finds a motion of one ego step); the end of such a wall 60 m
-away, where the beams that saw its last column find nothing in scan t+1; and a moving car 38 m away seen with 24
-points. Each comes with its points (ego-compensated and as the sensor saw them), its true step over the pair (after
-the ego motion), and the nearby points of scan t+1 with their normals and whether they belong to the cluster's
-joint component."""
+seeds 4 and 1; hdl64e, the ego at 7.5 to 9 m/s): a piece of a building side 64 m away at a grazing angle, whose
+columns lie 1.6 m apart so that scan t+1 samples it one ego step further along (the matcher then finds a motion of
+one ego step); the end of such a wall 60 m away, where the beams that saw its last column find nothing in scan t+1;
+and a moving car 38 m away seen with 24 points. Each comes with its points (ego-compensated and as the sensor saw
+them), its true step over the pair (after the ego motion), and the nearby points of scan t+1 with their normals and
+whether they belong to the cluster's joint component."""
 
 from __future__ import annotations
 
