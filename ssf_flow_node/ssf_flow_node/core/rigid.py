@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from itertools import chain
 from typing import NamedTuple
 
 import numpy as np
@@ -62,6 +63,9 @@ class RigidConfig(Section):
     min_speed: float = Field(0.5, ge=0.0, description="clusters slower than this (m/s) are static")
     ground_clearance: float = Field(0.08, ge=0.0, description="where the ground is split off, points this close above "
                                     "it (m) are ground and keep the scene's motion; higher ones near a mover share it")
+    footprint: float = Field(0.1, ge=0.0, description="points within ground_clearance of the ground still move with a "
+                             "moving object where one of its sampled points lies within this horizontal distance (m): "
+                             "its wheels and lowest parts, inside its footprint (0: never)")
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
@@ -103,6 +107,7 @@ class PairState:
     surfaces: Surfaces  # scan t+1 above the ground
     all_surfaces: Surfaces  # all of scan t+1
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
+    low: Plan | None  # those points seen from above
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
@@ -143,7 +148,8 @@ class RigidFlowEstimator:
         #    that stay still although parts of them changed are clustered finer and tried again
         belief = None if masked is None else masked[above1]
         previous = None if state.motion is None else state.motion[above1]
-        clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous)
+        clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous,
+                                          points1[above1])
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
         #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
@@ -154,7 +160,11 @@ class RigidFlowEstimator:
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
         state.moved = np.abs(state.motion).max(axis=1) > 0.0
-        state.result = finish(pair, moved - points1, ego, self.preprocess, state.ground1)
+        still = None
+        if state.ground1 is not None:  # the lowest points stay with the ground, except in a mover's footprint
+            still = state.ground1.copy()
+            still[state.low.under(points1[state.moved], self.config.footprint)] = False
+        state.result = finish(pair, moved - points1, ego, self.preprocess, still)
         return state.result
 
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
@@ -176,10 +186,11 @@ class RigidFlowEstimator:
         normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
         every = surfaces_of(points2, normals)
         above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
-        ground1 = None
-        if self.preprocess.remove_ground:  # whole scans: points on the ground never take an object's motion
+        ground1, low = None, None
+        if self.preprocess.remove_ground:  # whole scans: points on the ground take an object's motion only under it
             ground1 = pair.height1 < self.config.ground_clearance
-        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1)
+            low = Plan(pair.pc1, np.flatnonzero(ground1))
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
@@ -198,6 +209,23 @@ class RigidFlowEstimator:
         now = np.zeros(sampled, bool) if dynamic is None else dynamic
         changed = np.count_nonzero(before != now) / max(keep.size, 1)
         return state.base_ego if changed <= self.config.ego_refit else state.matcher.refine(source, state.base_ego, ordered=True)
+
+
+class Plan:
+    """Points of a scan seen from above: which of them lie within a horizontal distance of other points."""
+
+    def __init__(self, points: np.ndarray, index: np.ndarray) -> None:
+        self.points, self.index = points, index
+        self.tree: cKDTree | None = None  # built when first asked
+
+    def under(self, above: np.ndarray, reach: float) -> np.ndarray:
+        """Indices of the points with one of `above` within `reach` (m) horizontally: in its footprint."""
+        if reach <= 0 or len(above) == 0 or len(self.index) == 0:
+            return np.zeros(0, np.int64)
+        if self.tree is None:
+            self.tree = cKDTree(self.points[self.index, :2])
+        near = self.tree.query_ball_point(above[:, :2], reach, return_sorted=False)
+        return self.index[np.unique(np.fromiter(chain.from_iterable(near), np.int64))]
 
 
 def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
@@ -358,6 +386,11 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
     """Per label, residuals and unexplained share of its moved points against their component in scan t+1
     (`allowed`: each point's component)."""
     point, plane = surface_distance(moved, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    return fit_of(point, plane, labels, count, config)
+
+
+def fit_of(point: np.ndarray, plane: np.ndarray, labels: np.ndarray, count: int, config: RigidConfig) -> Fit:
+    """Per label, the fit of its points' distances to the points and surfaces of scan t+1 (plane NaN: nothing near)."""
     near = np.isfinite(plane)
     sizes = np.maximum(np.bincount(labels, minlength=count), 1)
     return Fit(np.bincount(labels, point, count) / sizes,
@@ -368,9 +401,10 @@ def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: n
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
                     belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
                     tree: cKDTree | None = None, candidates: np.ndarray | None = None,
-                    previous: np.ndarray | None = None) -> ClusterMotions:
+                    previous: np.ndarray | None = None, sensed: np.ndarray | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
-    standing still, and standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
+    standing still (as the moved sensor samples a still surface: `sensed`, the points where scan t saw them), and
+    standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
     count = clusters.count
     yaw, translation = np.zeros(count), np.zeros((count, 3))
     if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
@@ -411,23 +445,74 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                                  lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed,
                                                                        config, count, normals2, points2), max_yaw)
         moved = yaw_translate(source, yaw[labels], translation[labels])
-    lifted = source + np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
-    fit_static = fit_quality(lifted, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
+    fit_static = fit_quality(source + height, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
+    floor = floors[clusters.parent]
+    counted = np.maximum(label_counts(labels, count), 1)
+    moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
+    if sensed is not None and moving.any():  # standing still once more, as the moved sensor samples it again
+        check = moving[labels]
+        resampled = static_fit(source[check] + height[check], sensed[members][check] + height[check], labels[check],
+                               tree, clusters.labels2, allowed[check], config, count, normals2, points2,
+                               floors[allowed][check])
+        fit_static = Fit(*(np.where(moving, again, first) for again, first in zip(resampled, fit_static)))
+        moving &= explains(fit_moving, fit_static, believed, floor, counted, config)
+    yaw[~moving], translation[~moving] = 0.0, 0.0
+    return ClusterMotions(yaw, translation, moving)
+
+
+def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.ndarray, counted: np.ndarray,
+             config: RigidConfig) -> np.ndarray:
+    """Per cluster, whether its motion explains scan t+1 better than standing still (`floor`: its noise floor, m;
+    `counted`: its points in the fits; `believed`: the mask calls it dynamic)."""
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
     keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
-    floor = floors[clusters.parent]
-    counted = np.maximum(label_counts(labels, count), 1)  # a mean over few points needs a wider margin
-    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))
+    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))  # few points: wider margin
     no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
                 & (fit_moving.unexplained <= config.max_unexplained))
     closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes
-    explains = no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
-                                      | (fit_moving.residual < keep_point * fit_static.residual)))
-                           | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
-    moving = active & (speed > config.min_speed) & explains
-    yaw[~moving], translation[~moving] = 0.0, 0.0
-    return ClusterMotions(yaw, translation, moving)
+    return no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
+                                  | (fit_moving.residual < keep_point * fit_static.residual)))
+                       | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
+
+
+def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
+               allowed: np.ndarray, config: RigidConfig, count: int, normals2: np.ndarray | None,
+               points2: np.ndarray, floor: np.ndarray) -> Fit:
+    """How well standing still, as the moved sensor samples it again (`sensed`: the points as scan t saw them), explains
+    each cluster (`floor`: each point's noise floor, m)."""
+    point, plane = surface_distance(still, tree, points2, normals2, config.residual_cap, allowed, labels2)
+    if len(points2) < 2:
+        return fit_of(point, plane, labels, count, config)
+    # the sensor slid along the surfaces (standing still leaves most of the cluster on them, unlike a car ahead at the
+    # ego's speed) and scan t+1 samples them along the slide no finer than half of it (far walls at grazing angles,
+    # unlike a car beside us at the ego's speed): there its beams land on a still surface's points up to a slide away
+    resampled, resampled_plane = surface_distance(sensed, tree, points2, normals2, config.residual_cap, allowed,
+                                                  labels2)
+    slide = np.linalg.norm(sensed - still, axis=1)
+    on_surface = np.nan_to_num(plane, nan=np.inf) < 0.5 * slide
+    spacing = spacing_along(points2, tree, tree.query(still)[1], (sensed - still) / np.maximum(slide, 1e-9)[:, None])
+    slid = (spacing >= 0.5 * slide) & (label_means(on_surface.astype(np.float64), labels, count) > 0.5)[labels]
+    # each point where it was, or where the beam that saw it lands again if that lies closer to the points of scan
+    # t+1 and no farther from its surfaces (beyond the noise floor)
+    along = slid & (resampled < point) & (np.nan_to_num(resampled_plane, nan=np.inf)
+                                          <= np.maximum(np.nan_to_num(plane, nan=np.inf), floor))
+    point, plane = np.where(along, resampled, point), np.where(along, resampled_plane, plane)
+    # in clusters the resampling explains, a beam that now finds nothing passed the surface's end: no evidence
+    passed = ((label_means(along.astype(np.float64), labels, count) >= 0.5)[labels] & np.isnan(resampled_plane)
+              & ~(plane <= config.inlier_gate))
+    return fit_of(point, np.where(passed, 0.0, plane), labels, count, config)
+
+
+def spacing_along(points: np.ndarray, tree: cKDTree, index: np.ndarray, direction: np.ndarray,
+                  neighbours: int = 8) -> np.ndarray:
+    """Per query, how far the points of the tree lie apart along `direction` at points[index]: the distance to the
+    nearest of its neighbours within 45 degrees of that direction (either way), else to the farthest neighbour."""
+    gaps, near = tree.query(points[index], k=min(neighbours + 1, len(points)))
+    offsets = points[near[:, 1:]] - points[index][:, None]
+    aligned = np.abs(np.einsum("nkj,nj->nk", offsets, direction)) >= np.sqrt(0.5) * gaps[:, 1:]
+    return np.where(aligned.any(axis=1), np.where(aligned, gaps[:, 1:], np.inf).min(axis=1), gaps[:, -1])
 
 
 def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw: np.ndarray, translation: np.ndarray,
@@ -444,16 +529,19 @@ def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw:
 
 
 def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, config: RigidConfig,
-                  belief: np.ndarray | None, previous: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
+                  belief: np.ndarray | None, previous: np.ndarray | None = None,
+                  sensed: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
     """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
-    surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own."""
+    surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own (`sensed`:
+    the points as scan t saw them, before the ego compensation)."""
     points2, normals2, tree = surfaces.points, surfaces.normals, surfaces.tree
     _, still = surface_distance(points1, tree, points2, normals2, config.residual_cap,
                                 clusters.parent[clusters.labels1], clusters.labels2)
     near = np.isfinite(still)
     floors = noise_floors(surfaces, clusters, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
-    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous)
+    motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous,
+                              sensed=sensed)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
     changed = still > floors[clusters.parent[clusters.labels1]]
@@ -477,7 +565,7 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
     # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
     fresh = (np.arange(split.count) >= offset) & (
         label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
-    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous)
+    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous, sensed)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
                                  np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
