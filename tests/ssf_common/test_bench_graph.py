@@ -91,7 +91,7 @@ def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
     settings = node_parameters(["ssf_fusion_node:fusion.max_iterations:=1", "ssf_flow_node:estimator:=ego"])
     assert settings == {"ssf_fusion_node": {"fusion.max_iterations": 1}, "ssf_flow_node": {"estimator": "ego"}}
     fusion = next(node for node in bench_graph_spec("urban_200", 1, settings).nodes if node.name == "ssf_fusion_node")
-    assert fusion.parameters["fusion.max_iterations"] == 1 and fusion.parameters["timeout_s"] == 2.0
+    assert fusion.parameters["fusion.max_iterations"] == 1 and fusion.parameters["timeout_s"] == 0.5
     with pytest.raises(ConfigError, match="no node of that name"):
         bench_graph_spec("urban_200", 1, node_parameters(["recorder:x:=1"]))
     with pytest.raises(ConfigError, match="NODE:NAME:=VALUE"):

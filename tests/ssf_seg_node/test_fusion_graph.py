@@ -47,7 +47,7 @@ def test_distributed_loop_continues_then_converges_and_times_out():
     [superseded] = loop.on_flow(SceneFlow(8, "lidar", points, flow, 0), 2.2)
     assert superseded.reason == "superseded" and superseded.result.stamp_ns == 7
     assert loop.on_mask(MotionMask(7, "lidar", points, prob, instance, 1), 2.3) is None
-    assert loop.finished == {"converged": 1, "max_iterations": 0, "timeout": 1, "superseded": 1}
+    assert loop.finished == {"converged": 1, "max_iterations": 0, "timeout": 1, "superseded": 1, "deadline": 0}
 
 
 @pytest.fixture

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ssf_common.records import MotionMask, SceneFlow
 from ssf_eval.pipeline import PerceptionConfig, SsfPerception
@@ -54,6 +55,22 @@ def test_a_restarted_stream_is_not_taken_for_late_answers():
     loop.on_flow(SceneFlow(100_000_000, "lidar", points, flow, 0), 1.1)
     finish = loop.on_mask(MotionMask(100_000_000, "lidar", points, moving, np.ones(2, np.int32), 0), 1.1)
     assert isinstance(finish, Finish) and finish.result.stamp_ns == 100_000_000
+
+
+def test_an_iteration_that_would_end_after_the_timeout_is_not_started():
+    """Once a hint's round trip is known (0.8 s here), a scan whose mask comes 0.3 s into a 1 s timeout is answered at once."""
+    loop = DistributedLoop(FusionConfig(max_iterations=3), timeout_s=1.0)
+    points, flow = np.array([[0.0, 0, 0], [4.0, 0, 0]], np.float32), np.zeros((2, 3), np.float32)
+    masks = [np.array([0.0, 0.9], np.float32), np.array([0.0, 0.6], np.float32)]
+    loop.on_flow(SceneFlow(100, "lidar", points, flow, 0), 0.0)
+    assert isinstance(loop.on_mask(MotionMask(100, "lidar", points, masks[0], np.ones(2, np.int32), 0), 0.1), Continue)
+    loop.on_flow(SceneFlow(100, "lidar", points, flow + 0.5, 1), 0.7)
+    second = loop.on_mask(MotionMask(100, "lidar", points, masks[1], np.ones(2, np.int32), 1), 0.9)  # round trip 0.8 s
+    assert loop.round_trip_s == pytest.approx(0.8)
+    assert isinstance(second, Finish) and second.reason == "deadline"  # a third iteration would end at 1.7 s
+    loop.on_flow(SceneFlow(200, "lidar", points, flow, 0), 2.0)
+    finish = loop.on_mask(MotionMask(200, "lidar", points, masks[0], np.ones(2, np.int32), 0), 2.3)
+    assert isinstance(finish, Finish) and finish.reason == "deadline" and loop.finished["deadline"] == 2
 
 
 class Recorder:

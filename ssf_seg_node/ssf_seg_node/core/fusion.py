@@ -200,6 +200,7 @@ class _Scan:
     flows: dict[int, np.ndarray] = field(default_factory=dict)
     masks: dict[int, MotionMask] = field(default_factory=dict)  # mask computed from the flow of iteration i
     prior: np.ndarray | None = None  # the previous scan's segmentation carried onto this one
+    hinted_s: float | None = None  # when the last mask hint went out
 
 
 @dataclass(frozen=True)
@@ -213,9 +214,10 @@ class _Finished:
 class DistributedLoop:
     """The fusion loop when flow and segmentation run in other processes: it takes S^(i) and the mask computed from
     it as they arrive, keyed by stamp and iteration, and decides to continue (a mask hint) or to finish. A lost or
-    late message never stalls it: after `timeout_s` the best answer so far is published. The flow of a scan's
-    iteration 0 is estimated before any mask exists, so the temporal prior (the previous scan's segmentation carried
-    by its flow) joins the first mask hint."""
+    late message never stalls it: after `timeout_s` the best answer so far is published, and an iteration that the
+    measured round trip (hint -> mask) says would end after `timeout_s` is not started (the answer goes out at once).
+    The flow of a scan's iteration 0 is estimated before any mask exists, so the temporal prior (the previous scan's
+    segmentation carried by its flow) joins the first mask hint."""
 
     def __init__(self, config: FusionConfig, timeout_s: float = 0.5) -> None:
         self.config = config
@@ -223,7 +225,9 @@ class DistributedLoop:
         self.scan: _Scan | None = None
         self.last: _Finished | None = None
         self.gap_ns: int | None = None  # the shortest time between consecutive scans seen
-        self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0}
+        self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0,
+                                         "deadline": 0}
+        self.round_trip_s: float | None = None  # mask hint -> the next iteration's mask, smoothed over scans
 
     def restart(self) -> None:
         """Forget the scan in progress and the last answer: the stream started again (its stamps jumped back)."""
@@ -253,6 +257,9 @@ class DistributedLoop:
             return None
         i = mask.iteration
         scan.masks[i] = mask
+        if i > 0 and scan.hinted_s is not None:
+            taken = now_s - scan.hinted_s
+            self.round_trip_s = taken if self.round_trip_s is None else 0.8 * self.round_trip_s + 0.2 * taken
         flow, previous_flow = scan.flows[i], scan.flows.get(i - 1)
         previous_mask = scan.masks.get(i - 1)
         delta_flow = flow_change(flow, previous_flow)
@@ -262,6 +269,9 @@ class DistributedLoop:
         status = self._status(i, delta_total, delta_flow, delta_mask, converged, mask)
         if converged or i + 1 >= self.config.max_iterations:
             return self._finish(i, status, "converged" if converged else "max_iterations")
+        if self.round_trip_s is not None and now_s - scan.started_s + self.round_trip_s > self.timeout_s:
+            return self._finish(i, status, "deadline")  # another iteration would end after the timeout: answer now
+        scan.hinted_s = now_s
         hint = mask.dynamic_prob if scan.prior is None or i > 0 else np.maximum(mask.dynamic_prob, scan.prior)
         return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, hint, mask.instance, i + 1), status)
 
