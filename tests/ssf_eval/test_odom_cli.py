@@ -80,7 +80,8 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
     result = tmp_path / "odom.json"
     assert main(["eval", "odom", "--scenario", "sparse_50", "--frames", "4", "--masks", "gt", "--methods", "points",
                  "ssf", "kiss-icp", "--json", str(result), "--plot", str(tmp_path / "traj.png"),
-                 "--map-plot", str(tmp_path / "maps.png"), "--trail-every", "2"]) == 0
+                 "--map-plot", str(tmp_path / "maps.png"), "--trail-every", "2",
+                 "-p", "map.confirm:=2"]) == 0  # a 4-scan drive: voxels seen twice are in the map
     table = capsys.readouterr().out
     assert "RPE t RMSE" in table and "kiss-icp" in table
     document = json.loads(result.read_text())
