@@ -188,10 +188,12 @@ class SimBridgeNode(Node):
         self.pub_clock.publish(ros_messages.clock(stamp))
         self.pub_tf.publish(ros_messages.transforms(frame.base_pose, frame.pose, stamp))
         self.pub_odom.publish(ros_messages.odometry(frame.base_pose, frame.ego, stamp))
-        self.pub_obstacles.publish(ros_messages.obstacles(frame.agents, stamp))
-        if self.config.markers:
+        # the ground truth and the markers cost a few ms per step: built only when someone listens (a recorder, a view)
+        if self.pub_obstacles.get_subscription_count():
+            self.pub_obstacles.publish(ros_messages.obstacles(frame.agents, stamp))
+        if self.config.markers and self.pub_markers.get_subscription_count():
             self.pub_markers.publish(ros_messages.markers(frame.agents, stamp))
-        if previous is not None and frame.flow is not None:
+        if previous is not None and frame.flow is not None and self.pub_truth.get_subscription_count():
             self.pub_truth.publish(ros_messages.truth_cloud(previous.scan, frame.flow, previous.stamp_ns))
         self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))
         if frame.index % 10 == 0:
@@ -209,8 +211,8 @@ class SimBridgeNode(Node):
         self.stats.count(f"episodes_{frame.status.outcome.value}")
         if self.config.episodes == 0 or self.episode < self.config.episodes:
             self.pub_episode.publish(self._result(frame))
-            self.get_logger().info(f"episode {self.episode} over ({frame.status.outcome.value} after "
-                                   f"{frame.status.time:.1f} s); the next starts with seed {self.sim.seed + 1}")
+            self.get_logger().info(f"episode {self.episode} over ({describe_outcome(frame)}); the next starts with "
+                                   f"seed {self.sim.seed + 1}")
             self._new_episode(self.sim.seed + 1)
             self.step_ms.clear()  # the summary covers the drive it describes
             self._publish_route()
@@ -246,6 +248,13 @@ class SimBridgeNode(Node):
             except Exception as err:  # noqa: BLE001 - the episode is over either way; say what failed
                 self.exit_code = 1
                 self.get_logger().error(f"writing the episode results failed ({type(err).__name__}: {err})")
+
+
+def describe_outcome(frame: Frame) -> str:
+    """How a drive ended, in words: "collision with vehicle 12 after 21.3 s"."""
+    status = frame.status
+    what = f" with {status.collided_with}" if status.collided_with else ""
+    return f"{status.outcome.name.lower()}{what} after {status.time:.1f} s"
 
 
 def main(argv: list[str] | None = None) -> int:

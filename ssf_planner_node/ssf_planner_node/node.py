@@ -1,7 +1,8 @@
 """ssf_planner_node: /ssf/obstacles + /odom + a route (A -> B in the odometry frame) -> /cmd_vel and /ssf/plan.
 
 One plan per odometry message (the simulator's 10 Hz), with the newest obstacles moved into the odometry frame by
-the pose at their stamp. Stale obstacles cap the speed, stale odometry brakes, each said once."""
+the pose at their stamp; while odometry is late, one plan per control period from the newest pose carried forward.
+Stale obstacles cap the speed, stale odometry brakes, each said once."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from ssf_common.diagnostics import StageStats, advertise
 from ssf_common.errors import ConfigError, MessageError, SsfError
 from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
-from ssf_common.geometry.se3 import invert
+from ssf_common.geometry.se3 import invert, yaw_matrix
 from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_common.stamps import StampSequence
 from ssf_planner_node.core.config import PlannerConfig
@@ -28,6 +29,7 @@ from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus, Vehi
 from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
+LATE_ODOMETRY_PERIODS = 2  # odometry older than this many control periods is late: the timer plans in between
 
 
 class PlannerNode(Node):
@@ -49,7 +51,9 @@ class PlannerNode(Node):
         self.poses = PoseHistory()
         self.mounts: dict[str, np.ndarray] = {BASE_FRAME: np.eye(4)}
         self.obstacles: Obstacles | None = None
-        self.last_odometry_s: float | None = None
+        self.odometry: OdometryEstimate | None = None  # the newest (in the route's frame)
+        self.last_odometry_s: float | None = None  # when it arrived (the node's clock: stamps may run on another)
+        self.last_tick_s: float | None = None
         self.last_command = Command(0.0, 0.0)
         self.sent: deque[tuple[int, Command]] = deque(maxlen=200)  # (clock stamp, command) for latency compensation
         self.said: set[str] = set()
@@ -115,15 +119,22 @@ class PlannerNode(Node):
         if self.anchor_odometry:
             odometry = self._anchored(odometry)
         self.poses.add(odometry.stamp_ns, odometry.pose)
+        self.odometry = odometry
         self.last_odometry_s = self.get_clock().now_s()
         self._said_if(False, "odometry")
+        self._tick(odometry)
+
+    def _tick(self, odometry: OdometryEstimate) -> None:
+        """One plan from the odometry carried forward to now, with the newest obstacles."""
+        self.last_tick_s = self.get_clock().now_s()
         state = self._now(state_of(odometry))
-        obstacles = self._obstacles_now(odometry.frame_id, odometry.stamp_ns)
+        obstacles = self._obstacles_now(odometry)
         stale = obstacles is None
         step = self.planner.step(state, obstacles, stale=stale)
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
-        self.marker_pub.publish(self.markers.plan(step.plan))
+        if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
+            self.marker_pub.publish(self.markers.plan(step.plan))
         self._publish_state(odometry.stamp_ns, step)
         self.stats.record(step.solve_ms, "ticks")
         if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
@@ -156,8 +167,9 @@ class PlannerNode(Node):
         frame = self.planner.route.frame_id if self.planner.route is not None else "odom"
         return replace(odometry, pose=self.anchor @ odometry.pose, frame_id=frame)
 
-    def _obstacles_now(self, odom_frame: str, stamp_ns: int) -> Obstacles | None:
+    def _obstacles_now(self, odometry: OdometryEstimate) -> Obstacles | None:
         """The newest obstacles in the route's frame, or None when they are stale or cannot be placed."""
+        odom_frame, stamp_ns = odometry.frame_id, odometry.stamp_ns
         route_frame = self.planner.route.frame_id if self.planner.route is not None else odom_frame
         if route_frame != odom_frame:
             self._said_if(True, "frames", f"route frame '{route_frame}' is not the odometry frame '{odom_frame}': "
@@ -167,24 +179,43 @@ class PlannerNode(Node):
         if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
             obstacles = obstacles.transformed(self.anchor, route_frame)
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
-        if abs(age) > self.config.stale_after_s:  # from before a restart of the stream, obstacles lie in the future
+        # perception answers before odometry (which waits for the next scan's flow): obstacles up to max_latency_s
+        # newer than the odometry are placed by it carried forward; from before a restart they lie far in the future
+        if age > self.config.stale_after_s or -age > max(self.config.max_latency_s, self.config.stale_after_s):
             self._said_if(True, "obstacles", f"obstacles are stale ({'none yet' if obstacles is None else f'{age:.1f} s old'}): "
                           f"speed capped at {self.config.stale_speed:g} m/s")
             return None
-        placed = obstacles_in_route_frame(obstacles, route_frame, self.poses.at(obstacles.stamp_ns),
-                                          self.mounts.get(obstacles.frame_id))
+        pose = self.poses.at(obstacles.stamp_ns)
+        if pose is None and obstacles.stamp_ns > stamp_ns:
+            pose = self._carried_pose(odometry, obstacles.stamp_ns)
+        placed = obstacles_in_route_frame(obstacles, route_frame, pose, self.mounts.get(obstacles.frame_id))
         self._said_if(placed is None, "obstacles", f"obstacles in frame '{obstacles.frame_id}' cannot be placed (no pose "
                       f"at their stamp or no {BASE_FRAME} -> {obstacles.frame_id} transform): speed capped")
         return placed
 
+    def _carried_pose(self, odometry: OdometryEstimate, stamp_ns: int) -> np.ndarray:
+        """The odometry pose (odom <- base_link) carried forward to a later stamp by the commands sent since."""
+        vehicle = self.config.vehicle
+        before = state_of(odometry)
+        after = carried_forward(before, list(self.sent), stamp_ns, vehicle.max_accel, vehicle.max_decel)
+        pose = np.array(odometry.pose, dtype=np.float64)
+        pose[:3, :3] = yaw_matrix(after.yaw - before.yaw)[:3, :3] @ pose[:3, :3]
+        pose[0, 3], pose[1, 3] = after.x, after.y
+        return pose
+
     def watchdog(self) -> None:
-        """Without fresh odometry, slow down to a stop (said once)."""
-        if self.last_odometry_s is None:
+        """Every control period: when odometry is late (a loaded perception chain answers less often than the
+        control period), plan again from the newest pose carried forward by the commands sent since; once none has
+        come for longer than the latency that can be compensated, slow down to a stop (said once)."""
+        if self.odometry is None:
             return
-        age = self.get_clock().now_s() - self.last_odometry_s
-        if abs(age) > self.config.stale_after_s:  # from before a restart of the stream, obstacles lie in the future
-            self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s): braking")
+        now = self.get_clock().now_s()
+        age = now - self.last_odometry_s
+        if abs(age) > max(self.config.max_latency_s, self.config.stale_after_s):  # negative: from before a restart
+            self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s old): braking")
             self._publish(braking_on_the_arc(self.last_command, self.config.vehicle.max_decel * self.config.control_period))
+        elif age > LATE_ODOMETRY_PERIODS * self.config.control_period and now - self.last_tick_s >= self.config.control_period:
+            self._tick(self.odometry)  # in lockstep the clock waits for the planner: odometry is never late there
 
     def _publish(self, command: Command) -> None:
         self.last_command = command

@@ -110,7 +110,8 @@ class FusionNode(Node):
             obstacles = stack(obstacles, still_clusters(still, result.stamp_ns, result.frame_id,
                                                         self.config.obstacles.still).boxes)
         self.obstacle_pub.publish(obstacles_to_msg(obstacles))
-        self.marker_pub.publish(self.markers.obstacles(obstacles))
+        if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
+            self.marker_pub.publish(self.markers.obstacles(obstacles))
 
     def _publish_state(self, status: LoopStatus) -> None:
         self.state_pub.publish(messages.msg_type("ssf_interfaces/msg/FusionState")(

@@ -11,7 +11,7 @@ from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, vox
 from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
 from ssf_common.geometry.ground import ground_mask, height_above_ground
 from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
-from ssf_common.geometry.neighbours import chamfer_distance, knn, nearest, propagate
+from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import Sampling, farthest_point_indices, greedy_farthest_indices, sample_indices, voxel_indices
 from ssf_common.geometry.se3 import (compose, invert, make_pose, relative_pose, rigid_flow, rotation_angle,
                                      transform_points, yaw_of, yaw_translate)
@@ -148,6 +148,21 @@ def test_neighbours_by_hand():
     np.testing.assert_allclose(propagate(reference, values, np.array([[0.25, 0, 0]]), k=2), [[1.5]])
     np.testing.assert_allclose(propagate(reference, values, np.array([[3.0, 0, 0]]), k=2, radius=0.5), [[0.0]])
     assert chamfer_distance(reference, reference + [0, 0, 1.0]) == pytest.approx(2.0)
+
+
+def test_may_be_near_keeps_every_point_within_reach_and_drops_far_ones():
+    rng = np.random.default_rng(3)
+    for _ in range(100):
+        reference = rng.uniform(-50, 50, (int(rng.integers(1, 40)), 3))
+        query = rng.uniform(-70, 70, (2000, 3))
+        reach = float(rng.uniform(0.1, 5.0))
+        within = np.isfinite(nearest(reference, query, reach).distance)
+        kept = may_be_near(reference, query, reach)
+        assert kept[within].all()  # never drops a point that has a neighbour within reach
+        gap = np.abs(query[:, None, :2] - reference[None, :, :2]).max(axis=2).min(axis=1)
+        assert not kept[gap > 2 * reach].any()  # two cells away horizontally is never kept
+    assert not may_be_near(np.zeros((0, 3)), query, 1.0).any()
+    assert may_be_near(reference, query, np.inf).all()
 
 
 def test_clustering():

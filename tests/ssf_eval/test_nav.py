@@ -10,8 +10,10 @@ from dataclasses import replace
 
 import pytest
 
+from ssf_common.errors import ConfigError
+
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
-from ssf_eval.nav.loop import PERCEPTION_NAMES, ClosedLoop, TrialOutcome, TrialRecord, TrialSpec
+from ssf_eval.nav.loop import PERCEPTION_NAMES, ClosedLoop, DelayLine, TrialOutcome, TrialRecord, TrialSpec
 from ssf_eval.nav.stats import barn_score, summarise, wilson_interval
 
 LIGHT = {"lidar.columns": 256, "lidar.beams": 32}  # a lighter LiDAR keeps the trials quick
@@ -75,6 +77,25 @@ def test_cells_keep_the_pose_sources_apart():
     cells = summarise([gt, ssf, replace(ssf, seed=2, pose_error_max_m=0.4)])
     assert [(cell.source, cell.trials) for cell in cells] == [("ssf", 1), ("ssf + ssf pose", 2)]
     assert cells[1].pose_error_max_m == pytest.approx(0.2)
+
+
+def test_the_delay_line_answers_one_scan_in_n_each_late_as_a_loaded_graph():
+    line = DelayLine(latency_s=0.3, every=2, dt=0.1)
+    seen = [line.through(tick, f"scan {tick}") for tick in range(8)]
+    # scans 0, 2, 4, 6 are answered, each 3 ticks later; before the first answer the planner has nothing
+    assert seen == [None, None, None, "scan 0", "scan 0", "scan 2", "scan 2", "scan 4"]
+    assert DelayLine(0.0, 1, 0.1).through(5, "now") == "now"  # lockstep: the answer of this very scan
+    with pytest.raises(ConfigError, match="answer_every"):
+        DelayLine(0.1, 0, 0.1)
+
+
+def test_late_perception_trials_are_keyed_apart_and_drive():
+    spec = TrialSpec("gt", 50, 3, route_length=40.0, latency_s=0.8, answer_every=3)
+    assert spec.key == "gt/50/3/40m+late0.8s-every3/gt" and TrialSpec("gt", 50, 3, route_length=40.0).key == "gt/50/3/40m/gt"
+    loop = ClosedLoop(spec)
+    ticks = [loop.tick() for _ in range(12)]
+    assert all(tick.obstacles is None for tick in ticks[:8])  # the first answer comes 8 ticks after its scan
+    assert ticks[8].obstacles is not None and ticks[8].obstacles.stamp_ns == 0  # ... and is the first scan's
 
 
 def test_a_filmed_trial_writes_its_video(tmp_path):
@@ -175,6 +196,8 @@ def test_the_table_and_the_figure(tmp_path):
     (["--agents", "many"], "--agents expects comma-separated integers"),
     (["--pose", "imu"], "--pose: invalid choice"),
     (["--route-length", "5"], "--route-length must be at least 20 m"),
+    (["--latency", "-1"], "--latency must be from 0 to 10 s"),
+    (["--answer-every", "0"], "--answer-every must be at least 1"),
     (["-p", "horizon:=1"], "horizon"),
     (["--table-only"], "--table-only needs --resume FILE"),
     (["--video-first", "-1"], "--video-first must be 0 or more"),

@@ -39,6 +39,35 @@ def radius_neighbours(reference: np.ndarray, query: np.ndarray, radius: float, m
     return knn(reference, query, max_neighbours, radius, tree)
 
 
+MAX_GRID_CELLS = 1 << 24  # a prefilter grid larger than this (16 MB) is not worth building
+
+
+def may_be_near(reference: np.ndarray, query: np.ndarray, reach: float) -> np.ndarray:
+    """Which query points may have a reference point within `reach`: every one that does, and some that do not (a
+    horizontal grid of cell `reach` around the reference points). A KD-tree query costs the same per point near or
+    far, so filtering the many far points first makes a query of a whole scan against a few objects cheap."""
+    query, reference = np.asarray(query), np.asarray(reference)
+    if len(reference) == 0 or len(query) == 0:
+        return np.zeros(len(query), bool)
+    if not np.isfinite(reach) or reach <= 0:
+        return np.ones(len(query), bool)
+    low = reference[:, :2].min(axis=0) - reach
+    shape = np.floor((reference[:, :2].max(axis=0) + reach - low) / reach).astype(np.int64) + 1
+    if shape[0] * shape[1] > MAX_GRID_CELLS:
+        return np.ones(len(query), bool)
+    occupied = np.zeros(shape + 2, bool)  # a border of empty cells: the neighbours of every cell exist
+    cell = np.floor((reference[:, :2] - low) / reach).astype(np.int64) + 1
+    occupied[cell[:, 0], cell[:, 1]] = True
+    grown = occupied.copy()
+    for dx in (-1, 0, 1):
+        for dy in (-1, 0, 1):
+            grown[1:-1, 1:-1] |= occupied[1 + dx: shape[0] + 1 + dx, 1 + dy: shape[1] + 1 + dy]
+    # cells outside the grid fall on its empty border
+    column = np.clip(np.floor((query[:, 0] - low[0]) / reach).astype(np.int64) + 1, 0, shape[0] + 1)
+    row = np.clip(np.floor((query[:, 1] - low[1]) / reach).astype(np.int64) + 1, 0, shape[1] + 1)
+    return grown.ravel()[column * (shape[1] + 2) + row]
+
+
 def propagate(source: np.ndarray, values: np.ndarray, targets: np.ndarray, k: int = 3,
               radius: float = np.inf) -> np.ndarray:
     """Carry per-point values from source points to target points by inverse-distance kNN (KD-tree); targets

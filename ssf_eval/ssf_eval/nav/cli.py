@@ -47,6 +47,11 @@ def register(groups: CommandGroups) -> None:
     nav.add_argument("--video-dir", type=Path, default=Path("nav_videos"), metavar="DIR",
                      help="where the videos go, one PERCEPTION_AGENTS_SEED.mp4 per filmed trial (default nav_videos)")
     nav.add_argument("--video-format", choices=("mp4", "gif"), default="mp4", help="video format (default mp4)")
+    nav.add_argument("--latency", type=float, default=0.0, metavar="S",
+                     help="perception answers S seconds after its scan, as the real-time graph on a loaded machine "
+                     "does (default 0: lockstep)")
+    nav.add_argument("--answer-every", type=int, default=1, metavar="N",
+                     help="perception answers one scan in N, the others dropped as by a busy node (default 1)")
     nav.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                      help="planner config override, e.g. -p horizon:=12 -p obstacles.max_obstacles:=8")
     nav.set_defaults(func=run_eval)
@@ -80,6 +85,10 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ConfigError(f"--trials must be at least 1, got {args.trials}")
     if not 0 <= args.seed <= 2**32 - 1 - args.trials:
         raise ConfigError(f"--seed must be from 0 to 2^32 - 1 - trials, got {args.seed}")
+    if not (math.isfinite(args.latency) and 0 <= args.latency <= 10):
+        raise ConfigError(f"--latency must be from 0 to 10 s, got {args.latency:g}")
+    if args.answer_every < 1:
+        raise ConfigError(f"--answer-every must be at least 1, got {args.answer_every}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     overrides = parse_overrides(args.param, "-p")
@@ -92,7 +101,7 @@ def run_eval(args: argparse.Namespace) -> int:
     log_path = args.resume or Path(f"nav_trials_{time.strftime('%Y%m%d_%H%M%S')}.jsonl")
     check_writable(log_path, "trial log")
     specs = campaign_specs(perceptions, agents, args.trials, args.seed, args.route_length, args.time_limit, args.pose,
-                           overrides)
+                           overrides, latency_s=args.latency, answer_every=args.answer_every)
     specs = with_videos(specs, args.video_first, args.video_dir, args.video_format, args.trials)
     runner = RayRunner(args.ray) if args.ray else LocalRunner(args.workers or os.cpu_count() or 1)
     print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "
@@ -106,6 +115,7 @@ def run_eval(args: argparse.Namespace) -> int:
     print(format_table(cells))
     protocol = {"agents": agents, "perception": perceptions, "trials": args.trials, "seed": args.seed,
                 "route_length": args.route_length, "time_limit": args.time_limit, "pose": args.pose,
+                "latency_s": args.latency, "answer_every": args.answer_every,
                 "trial_log": str(log_path)}
     if args.json:
         write_result(args.json, {"protocol": protocol, "cells": [cell.to_json() for cell in cells]},

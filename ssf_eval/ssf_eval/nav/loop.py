@@ -59,12 +59,15 @@ class TrialSpec:
     planner: dict[str, Any] = field(default_factory=dict)  # PlannerConfig overrides (dotted names)
     scenario: dict[str, Any] = field(default_factory=dict)  # scenario overrides (dotted names), e.g. a lighter LiDAR
     video: str = ""  # film the trial into this file (.mp4 or .gif); not part of its key
+    latency_s: float = 0.0  # perception answers this long after their scan, as in the real-time graph
+    answer_every: int = 1  # perception answers one scan in this many (the others are dropped, as a busy node does)
 
     @property
     def key(self) -> str:
         """A unique name of the trial (resume matches on it)."""
         length = "full" if self.route_length is None else f"{self.route_length:g}m"
-        return f"{self.perception}/{self.agents}/{self.seed}/{length}/{self.pose}"
+        timing = f"+late{self.latency_s:g}s-every{self.answer_every}" if self.latency_s or self.answer_every > 1 else ""
+        return f"{self.perception}/{self.agents}/{self.seed}/{length}{timing}/{self.pose}"
 
 
 @dataclass(frozen=True)
@@ -133,6 +136,29 @@ class Tick:
     plan: Plan | None = None  # the MPC plan (odometry frame); None for the follower
 
 
+class DelayLine:
+    """Perception as a loaded real-time graph delivers it: one scan in `every` answered, each `latency_s` late; the
+    planner plans with the newest answer that has arrived (None before the first)."""
+
+    def __init__(self, latency_s: float, every: int, dt: float) -> None:
+        if not (np.isfinite(latency_s) and latency_s >= 0):
+            raise ConfigError(f"perception latency must be a finite number of seconds >= 0, got {latency_s}")
+        if every < 1:
+            raise ConfigError(f"perception must answer at least every scan (answer_every >= 1), got {every}")
+        self.delay_ticks = int(round(latency_s / dt))
+        self.every = every
+        self.pending: list[tuple[int, Obstacles]] = []  # (tick it arrives, answer)
+        self.newest: Obstacles | None = None
+
+    def through(self, tick: int, obstacles: Obstacles) -> Obstacles | None:
+        """The answer the planner has at this tick, given what perception made of this tick's scan."""
+        if tick % self.every == 0:
+            self.pending.append((tick + self.delay_ticks, obstacles))
+        while self.pending and self.pending[0][0] <= tick:
+            self.newest = self.pending.pop(0)[1]
+        return self.newest
+
+
 class ClosedLoop:
     """Simulator core -> perception core -> planner core -> simulator, one `tick()` per simulated step."""
 
@@ -153,6 +179,8 @@ class ClosedLoop:
         self.follower = self.sim.follower() if spec.perception == "follower" else None
         scans = ConsecutiveScans() if "ssf" in (spec.perception, spec.pose) and not self.follower else None
         self.perception = None if self.follower else make_perception(spec.perception, scans=scans)
+        timed = spec.latency_s > 0 or spec.answer_every > 1
+        self.delay = DelayLine(spec.latency_s, spec.answer_every, self.sim.dt) if timed and not self.follower else None
         mount = invert(self.frame.base_pose) @ self.frame.pose  # base_link <- lidar
         self.ssf_pose = SsfPose(mount, scans) if spec.pose == "ssf" and scans is not None else None
         self.pose_errors: list[float] = []  # |estimated - true| ego position (m), with --pose ssf
@@ -181,6 +209,8 @@ class ClosedLoop:
             command = self.follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
         else:
             obstacles = self.perception.observe(Observation(frame, lidar_pose, world_to_odom))
+            if self.delay is not None:
+                obstacles = self.delay.through(frame.index, obstacles)
             self.perceive_ms.append((time.perf_counter() - started) * 1e3)
             step = self.planner.step(state, obstacles)
             self.solve_ms.append(step.solve_ms)

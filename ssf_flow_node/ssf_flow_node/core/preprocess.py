@@ -11,7 +11,7 @@ from scipy.spatial import cKDTree
 from ssf_common.config import Section
 from ssf_common.errors import DataError
 from ssf_common.geometry.ground import ground_mask
-from ssf_common.geometry.neighbours import propagate
+from ssf_common.geometry.neighbours import may_be_near, propagate
 from ssf_common.geometry.sampling import Sampling, sample_indices
 
 
@@ -128,6 +128,7 @@ def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k
     rest = np.ones(points.shape[0], dtype=bool) if still is None else ~np.asarray(still, bool)
     rest[sample.indices] = False
     rest = np.flatnonzero(rest)
+    rest = rest[may_be_near(sample.points[moving], points[rest], radius)]
     gap, _ = cKDTree(sample.points[moving]).query(points[rest], distance_upper_bound=radius)
     near = rest[np.isfinite(gap)]  # only these can pick up any motion
     if near.size:

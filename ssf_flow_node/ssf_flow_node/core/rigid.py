@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from itertools import chain
 from typing import NamedTuple
 
 import numpy as np
@@ -15,6 +14,7 @@ from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
+from ssf_common.geometry.neighbours import may_be_near
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
@@ -216,16 +216,14 @@ class Plan:
 
     def __init__(self, points: np.ndarray, index: np.ndarray) -> None:
         self.points, self.index = points, index
-        self.tree: cKDTree | None = None  # built when first asked
 
     def under(self, above: np.ndarray, reach: float) -> np.ndarray:
         """Indices of the points with one of `above` within `reach` (m) horizontally: in its footprint."""
         if reach <= 0 or len(above) == 0 or len(self.index) == 0:
             return np.zeros(0, np.int64)
-        if self.tree is None:
-            self.tree = cKDTree(self.points[self.index, :2])
-        near = self.tree.query_ball_point(above[:, :2], reach, return_sorted=False)
-        return self.index[np.unique(np.fromiter(chain.from_iterable(near), np.int64))]
+        candidates = self.index[may_be_near(above[:, :2], self.points[self.index, :2], reach)]
+        gap, _ = cKDTree(above[:, :2]).query(self.points[candidates, :2], distance_upper_bound=np.nextafter(reach, np.inf))
+        return candidates[np.isfinite(gap)]
 
 
 def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:

@@ -90,7 +90,8 @@ class PlannerConfig(Section):
     corridor_gain: float = Field(1000.0, gt=0.0, description="cost per metre and step outside the corridor: it is soft, "
                                  "so a car already outside it (a pose error, a swerve) steers back instead of braking")
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
-    stale_after_s: float = Field(0.5, gt=0.0, description="obstacles (or odometry) older than this are stale")
+    stale_after_s: float = Field(0.5, gt=0.0, description="obstacles older than this (against the odometry) are stale; "
+                                 "no odometry for longer than this and than max_latency_s brakes the car")
     max_latency_s: float = Field(1.0, ge=0.0, description="odometry up to this much older than now is carried forward "
                                  "to now by the commands sent since (latency compensation); 0: plan from its stamp")
     vehicle: VehicleConfig = VehicleConfig()

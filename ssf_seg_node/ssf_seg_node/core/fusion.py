@@ -11,7 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
-from ssf_common.geometry.neighbours import nearest
+from ssf_common.geometry.neighbours import may_be_near, nearest
 from ssf_common.records import MotionMask, SceneFlow, Segmentation, SemanticFlow
 from ssf_seg_node.core.base import Segmenter
 
@@ -115,9 +115,10 @@ def carry_mask(points: np.ndarray, flow: np.ndarray, probability: np.ndarray, ne
     moved = np.asarray(points, np.float64)[:, :3] + np.asarray(flow, np.float64)
     following = np.asarray(next_points, np.float64)[:, :3]
     # only the surroundings of the moving points matter: there, the nearest moved point of any kind decides
-    near_moving = nearest(moved[moving], moved, 2.0 * radius)
-    around = np.flatnonzero(np.isfinite(near_moving.distance))
-    candidates = np.flatnonzero(np.isfinite(nearest(moved[moving], following, radius).distance))
+    around = np.flatnonzero(may_be_near(moved[moving], moved, 2.0 * radius))
+    around = around[np.isfinite(nearest(moved[moving], moved[around], 2.0 * radius).distance)]
+    candidates = np.flatnonzero(may_be_near(moved[moving], following, radius))
+    candidates = candidates[np.isfinite(nearest(moved[moving], following[candidates], radius).distance)]
     if candidates.size == 0:
         return prior
     found = nearest(moved[around], following[candidates], radius)
