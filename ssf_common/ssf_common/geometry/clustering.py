@@ -3,11 +3,13 @@ scikit-learn where a density clustering is wanted. Labels are 0..count-1; -1 is 
 
 from __future__ import annotations
 
+from itertools import chain
 from typing import NamedTuple
 
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 NEIGHBOUR_OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
                               if (dx, dy, dz) > (0, 0, 0)], dtype=np.int64)
@@ -40,6 +42,42 @@ def voxel_components(points: np.ndarray, voxel: float) -> Clustering:
     graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(voxels.size, voxels.size))
     count, component = connected_components(graph, directed=False)
     return Clustering(component[inverse.reshape(-1)], int(count))
+
+
+def spacing_components(points: np.ndarray, cell: float, reach: float, min_link: float, max_link: float,
+                       sample: int = 2048, seed: int = 0) -> Clustering:
+    """Connected components of points (sensor frame) linked where they lie closer than `reach` times the scan's point
+    spacing at their range, kept within [min_link, max_link] (m): objects a short gap apart stay apart where the scan is
+    dense (near the sensor), and sparsely sampled ones hold together (far away). The spacing grows with the range at the
+    sensor's angular resolution, measured on the points themselves (the median over up to `sample` of them of the
+    distance to the fourth nearest point, per metre of range); links are made between one point per `cell` voxel."""
+    if points.shape[0] == 0:
+        return Clustering(np.full(0, -1), 0)
+    xyz = np.asarray(points[:, :3], np.float64)
+    link = np.clip(reach * angular_spacing(xyz, sample, seed) * np.linalg.norm(xyz, axis=1), min_link, max_link)
+    keys = np.floor(xyz / cell).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    _, first, inverse = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_index=True,
+                                  return_inverse=True)
+    cells = xyz[first]
+    near = cKDTree(cells).query_ball_point(cells, link[first], return_sorted=False)
+    lengths = np.fromiter(map(len, near), np.int64, len(near))
+    rows = np.repeat(np.arange(cells.shape[0]), lengths)
+    cols = np.fromiter(chain.from_iterable(near), np.int64, int(lengths.sum()))
+    graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(cells.shape[0], cells.shape[0]))
+    count, component = connected_components(graph, directed=False)
+    return Clustering(component[inverse.reshape(-1)], int(count))
+
+
+def angular_spacing(points: np.ndarray, sample: int = 2048, seed: int = 0, neighbours: int = 4) -> float:
+    """Typical distance between neighbouring points of a scan per metre of range (rad): the median over up to `sample`
+    points of the distance to their `neighbours`-th nearest point divided by their range (0 for under two points)."""
+    if points.shape[0] <= neighbours:
+        return 0.0
+    pick = np.random.default_rng(seed).choice(points.shape[0], min(sample, points.shape[0]), replace=False)
+    gaps = cKDTree(points).query(points[pick], k=neighbours + 1)[0][:, -1]
+    return float(np.median(gaps / np.maximum(np.linalg.norm(points[pick], axis=1), 1e-6)))
 
 
 def dbscan(features: np.ndarray, eps: float, min_samples: int = 5) -> Clustering:

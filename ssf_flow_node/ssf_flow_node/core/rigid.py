@@ -466,7 +466,8 @@ def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.n
     `counted`: its points in the fits; `believed`: the mask calls it dynamic)."""
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
     keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
-    misfit = fit_static.plane > floor * (1.0 + np.sqrt(config.min_cluster_points / counted))  # few points: wider margin
+    margin = np.where(believed, 1.0, 1.0 + np.sqrt(config.min_cluster_points / counted))  # few points: wider margin
+    misfit = fit_static.plane > floor * margin  # unless the mask already calls the cluster dynamic
     no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
                 & (fit_moving.unexplained <= config.max_unexplained))
     closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes

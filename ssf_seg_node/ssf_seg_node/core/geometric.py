@@ -10,7 +10,7 @@ from pydantic import Field
 
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
-from ssf_common.geometry.clustering import voxel_components
+from ssf_common.geometry.clustering import spacing_components
 from ssf_common.geometry.fitting import batched_kabsch, weighted_kabsch
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_extents, label_means
@@ -24,7 +24,14 @@ class GeometricConfig(Section):
     min_speed: float = Field(0.6, gt=0.0, description="residual speed (m/s) above which a point may move")
     prior_speed: float = Field(0.3, gt=0.0, description="the same threshold for points the previous mask called dynamic")
     softness: float = Field(0.3, gt=0.0, description="width of the probability ramp around the threshold, as a share of it")
-    cluster_voxel: float = Field(1.0, gt=0.0, description="voxel edge (m) connecting moving points into objects")
+    cluster_reach: float = Field(2.5, gt=0.0, description="moving points closer than this many times the local point "
+                                 "spacing (measured on the scan) belong to one object, so that two neighbours a short gap "
+                                 "apart (cars in adjacent lanes, people walking side by side) stay two")
+    cluster_cell: float = Field(0.2, gt=0.0, description="voxel (m) on which the point spacing is measured and linked")
+    min_link: float = Field(1.0, gt=0.0, description="shortest link (m) connecting moving points into objects (the "
+                            "scale of a vehicle's or a walker's own gaps, where the scan is dense)")
+    max_link: float = Field(2.0, gt=0.0, description="longest link (m) connecting moving points into objects, where the "
+                            "scan is sparse (far away)")
     min_points: int = Field(3, ge=1, description="smaller moving clusters are noise and stay static")
     max_extent: float = Field(15.0, gt=0.0, description="larger moving clusters (xy extent, m) are ego-motion error, static")
     rigidity: float = Field(0.25, gt=0.0, description="largest RMS deviation (m) of a cluster's flow from one rigid motion")
@@ -61,8 +68,9 @@ class GeometricSegmenter:
         if self.config.ground_height > 0:
             moving &= height_above_ground(points, self.config.ground_cell) >= self.config.ground_height
         candidates = np.flatnonzero(moving)
-        # 4. clusters of the candidates; the big-enough, rigidly moving ones are objects
-        labels, count = voxel_components(points[candidates], self.config.cluster_voxel)
+        # 4. clusters of the candidates (linked within a few point spacings); the big-enough, rigidly moving ones are objects
+        labels, count = spacing_components(points[candidates], self.config.cluster_cell, self.config.cluster_reach,
+                                           self.config.min_link, self.config.max_link)
         moving = self.moving_clusters(points[candidates], flow[candidates], labels, count)
         # 5. slots: the static scene, then one per moving object, with a probability from how fast it moves
         cluster_speed = label_means(speed[candidates], labels, count)
