@@ -148,6 +148,26 @@ def test_skipped_scans_follow_the_flows_motion_rate():
         assert step.predicted_by in ("start", "flow")
 
 
+@pytest.mark.parametrize("headings, found", [((3.0, 6.0, 9.0, 12.0, 16.0, 20.0), True), ((), False)])
+def test_a_swerve_between_skipped_scans_is_found_by_the_heading_search(headings, found):
+    """Every third scan reaches the odometry and the car swerves 14 degrees in between: the flow measured before
+    the swerve extrapolates straight on; the heading search finds the turn, without it the pose goes astray."""
+    config = OdomConfig(ssf_range=100.0, gap_headings=headings)
+    odometry = make_odometry("ssf", config)
+    world, moving = street(4, moved=False)
+    world = world[~moving]
+    poses = {index: make_pose(1.0 * index) for index in (0, 1, 3, 4, 6, 7)}
+    poses[9] = poses[6] @ make_pose(3.0, 0.0, 0.0, yaw=0.25)
+    poses[10] = poses[9] @ make_pose(1.0, 0.0, 0.0)
+    scan = lambda index: transform_points(invert(poses[index]), world)
+    for index in (0, 3, 6, 9):
+        points = scan(index)
+        step = odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points,
+                                       np.zeros(len(points), np.float32)))
+    translation, rotation = pose_error(step.pose, poses[9])
+    assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
+
+
 def test_inputs_are_checked():
     odometry = make_odometry("ssf")
     points = np.zeros((10, 3), np.float32)
