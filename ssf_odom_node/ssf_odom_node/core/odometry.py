@@ -29,6 +29,9 @@ class OdomMethod(str, Enum):
     SSF = "ssf"  # Kabsch on the static points' flow, refinement on static points against a static map
 
 
+HEADING_TRIAL_POINTS = 512  # points of a scan each heading hypothesis is tried with
+
+
 class OdomConfig(Section):
     """Everything the odometry needs; the same dotted names in YAML, ROS parameters and CLI flags."""
 
@@ -262,6 +265,8 @@ class Odometry:
         most points (a swerve of 13 degrees in 0.3 s left the extrapolated flow 4 degrees off: metres at range, out of
         the refinement's reach)."""
         best, most = start, -1
+        stride = max(1, len(points) // HEADING_TRIAL_POINTS)  # a few hundred points tell the headings apart
+        points, weights = points[::stride], None if weights is None else weights[::stride]
         for offset in (0.0, *self.config.gap_headings, *(-np.asarray(self.config.gap_headings))):
             turned = start.copy()
             turned[:3, :3] = yaw_matrix(np.radians(offset))[:3, :3] @ start[:3, :3]
