@@ -180,8 +180,14 @@ class PlannerNode(Node):
             obstacles = obstacles.transformed(self.anchor, route_frame)
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
         # perception answers before odometry (which waits for the next scan's flow): obstacles up to max_latency_s
-        # newer than the odometry are placed by it carried forward; from before a restart they lie far in the future
-        if age > self.config.stale_after_s or -age > max(self.config.max_latency_s, self.config.stale_after_s):
+        # newer than the odometry are placed by it carried forward; from before a restart they lie far in the future.
+        # Planning again while odometry is late, the picture ages with the clock too: older than the latency the
+        # planner compensates, it is stale (when stamps and the clock agree: a bag replayed without /clock differs)
+        patience = max(self.config.max_latency_s, self.config.stale_after_s)
+        now_ns = self.get_clock().now_ns()
+        clock_agrees = 0 <= now_ns - stamp_ns <= patience * 1e9
+        aged = obstacles is not None and clock_agrees and (now_ns - obstacles.stamp_ns) * 1e-9 > patience
+        if age > self.config.stale_after_s or -age > patience or aged:
             self._said_if(True, "obstacles", f"obstacles are stale ({'none yet' if obstacles is None else f'{age:.1f} s old'}): "
                           f"speed capped at {self.config.stale_speed:g} m/s")
             return None

@@ -183,3 +183,18 @@ def test_obstacles_newer_than_the_odometry_are_placed_by_it_carried_forward(grap
     assert placed.centres[0, 0] == pytest.approx(12.0, abs=0.05)  # 10 m ahead of where the car is 0.4 s on at 5 m/s
     node.obstacles = Obstacles.empty(5_000_000_000, "base_link")  # far in the future: from before a restart
     assert node._obstacles_now(estimate) is None and "obstacles" in node.said
+
+
+def test_obstacles_older_than_the_compensated_latency_are_stale_when_planning_again(graph):
+    """While odometry is late the timer plans again from it; the obstacles age with the clock, and once older than
+    the latency the planner compensates (max_latency_s) they no longer count: the speed is capped."""
+    node, _publishers, _commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]")
+    now = node.get_clock().now_ns()
+    estimate = OdometryEstimate(now - 900_000_000, np.eye(4), np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]),
+                                frame_id="odom")
+    for stamp in (now - 1_200_000_000, now - 950_000_000, estimate.stamp_ns):  # poses to place obstacles with
+        node.poses.add(stamp, np.eye(4))
+    node.obstacles = Obstacles.empty(now - 950_000_000, "base_link")
+    assert node._obstacles_now(estimate) is not None  # 0.95 s old: within the compensated latency
+    node.obstacles = Obstacles.empty(now - 1_200_000_000, "base_link")  # 0.3 s before the odometry: fine by it ...
+    assert node._obstacles_now(estimate) is None and "obstacles" in node.said  # ... but 1.2 s old by the clock
