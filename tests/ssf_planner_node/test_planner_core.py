@@ -95,6 +95,19 @@ def test_stops_for_a_static_box_across_the_road():
     assert max(step.obstacles for step in steps) == 1
 
 
+def test_an_old_picture_is_given_a_wider_berth():
+    """The same wall, seen 1 s before each tick (a loaded real-time graph): the planner stops farther from it, by the
+    latency margin (1 m per second of age)."""
+    def stopped_at(age_s: float) -> float:
+        wall = lambda t: boxes([[30.0, 0.0]], [[2.0, 30.0]], stamp_ns=int(round((t - age_s) * 1e9)))
+        states, _clearance, _steps = drive(planner_for([[0, 0], [200, 0]]), (0.0, 0.0, 0.0, 8.0), 80, wall)
+        assert states[-1, 3] < 0.2
+        return float(states[-1, 0])
+
+    fresh, old = stopped_at(0.0), stopped_at(1.0)
+    assert fresh - old == pytest.approx(1.0, abs=0.35)
+
+
 def test_passes_a_crossing_agent_by_its_predicted_position():
     def crossing(t: float) -> Obstacles:  # a car crossing the route from the right at 4 m/s
         return boxes([[30.0, -14.0 + 4.0 * t]], [[2.0, 4.5]], [[0.0, 4.0]], int(round(t * 1e9)))

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 from typing import NamedTuple
 
@@ -125,6 +125,9 @@ class RdaPlanner:
         times = latency + cfg.dt * np.arange(cfg.horizon + 1)
         obstacles = obstacles.take(avoidance.within_range(obstacles, nominal[0, :2], latency, cfg.obstacles.range,
                                                           cfg.obstacles.static_speed))
+        if latency > 0 and cfg.obstacles.latency_margin > 0:  # a picture that old is that much less certain
+            grown = 2.0 * cfg.obstacles.latency_margin * latency
+            obstacles = replace(obstacles, sizes=obstacles.sizes + np.array([grown, grown, 0.0]))
         corners = avoidance.predicted_corners(obstacles, times, cfg.obstacles.static_speed)
         chosen = avoidance.nearest_obstacles(corners, nominal[:, :2], self._ego_radius, cfg.obstacles.max_obstacles,
                                              cfg.obstacles.range)
