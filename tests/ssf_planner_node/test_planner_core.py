@@ -96,11 +96,12 @@ def test_stops_for_a_static_box_across_the_road():
 
 
 def test_an_old_picture_is_given_a_wider_berth():
-    """The same wall, seen 1 s before each tick (a loaded real-time graph): the planner stops farther from it, by the
-    latency margin (1 m per second of age)."""
+    """The same wall, seen 1 s before each tick (a loaded real-time graph): with a latency margin of 1 m per second
+    of age the planner stops 1 m farther from it."""
     def stopped_at(age_s: float) -> float:
         wall = lambda t: boxes([[30.0, 0.0]], [[2.0, 30.0]], stamp_ns=int(round((t - age_s) * 1e9)))
-        states, _clearance, _steps = drive(planner_for([[0, 0], [200, 0]]), (0.0, 0.0, 0.0, 8.0), 80, wall)
+        planner = planner_for([[0, 0], [200, 0]], obstacles={"latency_margin": 1.0})
+        states, _clearance, _steps = drive(planner, (0.0, 0.0, 0.0, 8.0), 80, wall)
         assert states[-1, 3] < 0.2
         return float(states[-1, 0])
 

@@ -56,9 +56,10 @@ class ObstacleConfig(Section):
     headway: float = Field(0.8, ge=0.0, description="soft: extra distance (s x own speed towards the obstacle) kept "
                            "from what lies ahead, since it may stop at once")
     static_speed: float = Field(0.01, ge=0.0, description="obstacles slower than this (m/s) are taken as static")
-    latency_margin: float = Field(1.0, ge=0.0, description="each obstacle grows by this much (m) on every side per "
+    latency_margin: float = Field(0.0, ge=0.0, description="each obstacle grows by this much (m) on every side per "
                                   "second of its age when the plan starts: where its constant velocity puts an object "
-                                  "seen that long ago is uncertain (it brakes, turns; the ego's pose drifts)")
+                                  "seen that long ago is uncertain (0: off; 1.0 delayed the real-time graph's "
+                                  "collisions but blocked dense traffic, see the README)")
 
     @model_validator(mode="after")
     def _distances(self) -> ObstacleConfig:
