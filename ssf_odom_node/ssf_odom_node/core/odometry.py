@@ -16,7 +16,7 @@ from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, rotation_angle, transform_points, yaw_matrix
 from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
                                              point_to_plane)
-from ssf_odom_node.core.static_map import MapConfig, VoxelMap
+from ssf_odom_node.core.static_map import MapConfig, VoxelMap, above_ground
 
 GAP_NOISE = np.diag([0.05, 0.05, 0.05, 0.005, 0.005, 0.005]) ** 2  # per predicted-only scan (m, rad)^2
 
@@ -94,7 +94,7 @@ class Odometry:
     def __init__(self, config: OdomConfig) -> None:
         self.config = config
         self.method = OdomMethod(config.method)
-        self.map = VoxelMap(self.map_config(config.map))
+        self.map = VoxelMap(self.map_config(config.map), config.scan_period)
         self.voxel: float | None = None  # the scan voxel, chosen on the first scan
         self.pose = np.eye(4)
         self.covariance = np.zeros((6, 6))
@@ -118,8 +118,10 @@ class Odometry:
         # 5. the motion to the next scan from the static points and their flow (weighted Kabsch)
         self.next_motion = self.flow_motion(points, flow, dynamic)
         # 6. the registered points join the map at the new pose (for ssf: where the segmentation sees, points that do
-        # not move on their own, and the scan's beams clear what they pass through)
-        self.update_map(self.mapped_points(points, flow, dynamic), frame.points)
+        # not move on their own, not where it saw moving points lately, and the scan's beams clear what they pass
+        # through)
+        self.update_map(self.mapped_points(points, flow, dynamic), frame.points,
+                        self.moving_points(points, flow, dynamic))
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
                         None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
                         alignment.rmse, source, len(self.map), len(registered))
@@ -142,21 +144,23 @@ class Odometry:
                 break
             scale *= 0.6
         if scale != 1.0:
-            self.map = VoxelMap(self.map_config(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale})))
+            self.map = VoxelMap(self.map_config(self.config.map.model_copy(update={"voxel": self.config.map.voxel * scale})),
+                                self.config.scan_period)
         return self.config.voxel * scale
 
     def map_config(self, config: MapConfig) -> MapConfig:
         """The map's config: as given for ssf; the whole-scan variants map every voxel at once, never cleared."""
         if self.method is OdomMethod.SSF:
             return config
-        return config.model_copy(update={"confirm": 1, "clear_cell": 0.0, "max_speed": 0.0})
+        return config.model_copy(update={"confirm": 1, "clear_cell": 0.0, "max_speed": 0.0, "moving_memory": 0.0})
 
-    def update_map(self, mapped: np.ndarray, scan: np.ndarray) -> None:
+    def update_map(self, mapped: np.ndarray, scan: np.ndarray, moving: np.ndarray | None = None) -> None:
         """Insert the mapped points (with normals from their neighbours in the scan) at the current pose; for ssf the
-        voxels they hit gain evidence and the whole scan's beams (sensor frame) clear the voxels they pass through."""
+        voxels they hit gain evidence, the voxels of the moving points are remembered, and the whole scan's beams
+        (sensor frame) clear the voxels they pass through."""
         moved = transform_points(self.pose, mapped)
         if self.method is OdomMethod.SSF:
-            new = self.map.observe(moved)
+            new = self.map.observe(moved, None if moving is None else transform_points(self.pose, moving))
             self.map.clear(self.in_range(np.asarray(scan, np.float32)[:, :3], self.config.min_range), self.pose)
         else:
             new = self.map.new_voxels(moved)
@@ -233,6 +237,21 @@ class Odometry:
             own = points + flow - (points @ self.next_motion[:3, :3].T + self.next_motion[:3, 3])
             keep &= np.einsum("ij,ij->i", own, own) <= (self.config.map.max_speed * self.config.scan_period) ** 2
         return points[keep]
+
+    def moving_points(self, points: np.ndarray, flow: np.ndarray | None,
+                      dynamic: np.ndarray | None) -> np.ndarray | None:
+        """ssf: the points the segmentation calls moving within its range, above their local ground (the ground under
+        an agent stays mappable), and where their flow takes them by the next scan (this scan's coordinates: where an
+        agent that stops will stand); None for the other methods or without a segmentation."""
+        if self.method is not OdomMethod.SSF or dynamic is None or self.config.map.moving_memory <= 0:
+            return None
+        near = np.einsum("ij,ij->i", points[:, :2], points[:, :2]) <= self.config.ssf_range ** 2
+        chosen = np.flatnonzero(near & (dynamic > self.config.static_threshold))
+        chosen = chosen[above_ground(points[chosen], points[near], self.map.config.voxel)]
+        if flow is None or self.next_motion is None:
+            return points[chosen]
+        ahead = (points[chosen] + flow[chosen] - self.next_motion[:3, 3]) @ self.next_motion[:3, :3]
+        return np.concatenate([points[chosen], ahead])
 
     @staticmethod
     def in_range(points: np.ndarray, near: float) -> np.ndarray:

@@ -1,7 +1,10 @@
 """The static map: one point (with its normal) per voxel, in the odometry frame, bounded to a local window around
 the vehicle and to a voxel cap, so its memory never grows with the route. Each voxel carries evidence: scans that
 observe it static add to it, scans whose beams pass through it (free space) take from it, and a voxel joins the map
-only once enough scans confirmed it; what moving objects the segmentation missed leave behind is cleared."""
+only once enough scans confirmed it; what moving objects the segmentation missed leave behind is cleared. The map
+also remembers where the segmentation saw moving points (above the local ground): those voxels stay out of the map
+for a while, so an agent that stops where it walked or drove is not confirmed, and voxels that a missed agent
+confirmed leave when a seen one passes through them."""
 
 from __future__ import annotations
 
@@ -17,6 +20,8 @@ from ssf_odom_node.core.registration import PlaneTarget
 KEY_BITS = 21  # per axis: +-1M voxels, packed into one int64 code
 KEY_OFFSET = 1 << (KEY_BITS - 1)
 BYTES_PER_VOXEL = 3 * 4 + 3 * 4 + 8 + 2 + 4 + 1  # float32 point and normal, int64 code, evidence, first scan, confirmed
+BYTES_PER_MOVING = 8 + 4  # int64 code and last scan of a voxel remembered as holding moving points
+MOVING_CLEARANCE = 0.5  # in voxels: moving points this close above the lowest point of their column are its ground
 MAX_SLOPE = 20.0  # tan of the most grazing incidence the clearing margin allows for (~87 deg)
 
 
@@ -43,6 +48,13 @@ class MapConfig(Section):
                               "voxel is seen through when the nearest return in its cell lies beyond it by more than "
                               "the voxel and the cell's depth spread on its surface (0: no clearing)")
 
+    miss_weight: int = Field(4, ge=1, description="ssf: evidence a voxel loses per scan whose beams pass through it "
+                             "(4: a confirmed voxel leaves after two scans that see through it)")
+    moving_memory: float = Field(30.0, ge=0.0, description="ssf: voxels where the segmentation saw moving points "
+                                 "(above the local ground) stay out of the published map for this long (s), and "
+                                 "confirmed voxels they hold are unconfirmed; longer than agents stop at crossings "
+                                 "(0: off)")
+
     @model_validator(mode="after")
     def _evidence_reaches_confirmation(self) -> MapConfig:
         if self.confirm > self.max_evidence:
@@ -51,8 +63,8 @@ class MapConfig(Section):
 
     @property
     def max_bytes(self) -> int:
-        """The memory the map may hold at most."""
-        return self.max_voxels * BYTES_PER_VOXEL
+        """The memory the map may hold at most (voxels and remembered moving voxels, each at most max_voxels)."""
+        return self.max_voxels * (BYTES_PER_VOXEL + BYTES_PER_MOVING)
 
 
 def angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
@@ -62,6 +74,22 @@ def angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
         return cell
     _, index = RangeImage.project(points, cell, int(np.ceil(2 * np.pi / cell)))
     return float(np.sqrt(len(np.unique(index)) * cell ** 2 / len(points)))
+
+
+def above_ground(moving: np.ndarray, scan: np.ndarray, voxel: float) -> np.ndarray:
+    """(M,) bool: moving points higher than half a voxel above the lowest point (of `scan` and `moving`) in their
+    column (voxel x voxel, horizontally): a moving agent's body, not the ground under it."""
+    def column(points: np.ndarray) -> np.ndarray:
+        keys = np.floor(np.asarray(points[:, :2], np.float64) / voxel).astype(np.int64) + KEY_OFFSET
+        return (keys[:, 0] << KEY_BITS) | keys[:, 1]
+
+    if len(moving) == 0:
+        return np.zeros(0, bool)
+    every = np.concatenate([np.asarray(scan, np.float32)[:, :3], np.asarray(moving, np.float32)[:, :3]])
+    columns, inverse = np.unique(column(every), return_inverse=True)
+    lowest = np.full(len(columns), np.inf, np.float32)
+    np.minimum.at(lowest, inverse, every[:, 2])
+    return moving[:, 2] > lowest[inverse[len(scan):]] + MOVING_CLEARANCE * voxel
 
 
 def voxel_codes(points: np.ndarray, voxel: float) -> np.ndarray:
@@ -114,8 +142,9 @@ class VoxelMap:
     """A local voxel map of points with normals and their evidence; `target()` is what a scan is registered
     against, `points`/`normals` are the confirmed voxels."""
 
-    def __init__(self, config: MapConfig) -> None:
+    def __init__(self, config: MapConfig, scan_period: float = 0.1) -> None:
         self.config = config
+        self.memory_scans = round(config.moving_memory / scan_period)  # how long moving voxels are remembered
         self.stored_points = np.zeros((0, 3), np.float32)
         self.stored_normals = np.zeros((0, 3), np.float32)
         self.codes = np.zeros(0, np.int64)
@@ -125,6 +154,8 @@ class VoxelMap:
         self.scans = 0  # observations so far
         self.cleared = 0  # voxels removed by free-space clearing so far
         self.cell: float | None = None  # rad, the clearing range image's cell (from the first scan cleared with)
+        self.moving_codes = np.zeros(0, np.int64)  # voxels that held moving points lately (sorted)
+        self.moving_seen = np.zeros(0, np.int32)  # the last observation that saw moving points in each
         self._target: PlaneTarget | None = None
         self._changed_since_build = 0
 
@@ -145,23 +176,53 @@ class VoxelMap:
     def nbytes(self) -> int:
         """Memory held by the map's arrays."""
         return sum(array.nbytes for array in (self.stored_points, self.stored_normals, self.codes, self.evidence,
-                                              self.first, self.confirmed))
+                                              self.first, self.confirmed, self.moving_codes, self.moving_seen))
 
     def new_voxels(self, points: np.ndarray) -> np.ndarray:
         """Indices of the points (odometry frame) that fall in voxels the map does not hold yet, one per voxel."""
         codes, first = np.unique(voxel_codes(points, self.config.voxel), return_index=True)
         return first[~np.isin(codes, self.codes, assume_unique=True)]
 
-    def observe(self, points: np.ndarray) -> np.ndarray:
+    def observe(self, points: np.ndarray, moving: np.ndarray | None = None) -> np.ndarray:
         """One scan's static points (odometry frame): the voxels they fall in gain evidence (and are confirmed once
-        they have enough); returns the indices of the points in voxels not held yet, one per voxel."""
+        they have enough, unless moving points were seen in them lately); `moving`: the scan's moving points
+        (odometry frame, above their ground: see `above_ground`), whose voxels are remembered and unconfirmed.
+        Returns the indices of the points in voxels not held yet, one per voxel."""
         self.scans += 1
+        if moving is not None and self.memory_scans > 0:
+            self.remember_moving(moving)
+        moved_in = self.holds_moving(self.codes)
+        self.confirmed &= ~moved_in
         codes, first = np.unique(voxel_codes(points, self.config.voxel), return_index=True)
         held = np.isin(self.codes, codes, assume_unique=True)
         self.evidence[held] = np.minimum(self.evidence[held] + 1, self.config.max_evidence)
-        newly = held & ~self.confirmed & (self.evidence >= self.config.confirm)
+        newly = held & ~self.confirmed & (self.evidence >= self.config.confirm) & ~moved_in
         self.confirmed |= newly
         return first[~np.isin(codes, self.codes[held], assume_unique=True)]
+
+    def remember_moving(self, moving: np.ndarray) -> None:
+        """Remember the voxels of moving points (odometry frame) as of this scan; forget those not seen for
+        `moving_memory` (and the oldest beyond max_voxels)."""
+        fresh = self.moving_seen > self.scans - self.memory_scans
+        known, seen = self.moving_codes[fresh], self.moving_seen[fresh]
+        codes = np.unique(voxel_codes(moving, self.config.voxel)) if len(moving) else np.zeros(0, np.int64)
+        where = np.searchsorted(known, codes)
+        found = np.zeros(len(codes), bool)
+        found[where < len(known)] = known[where[where < len(known)]] == codes[where < len(known)]
+        seen[where[found]] = self.scans
+        known = np.insert(known, where[~found], codes[~found])
+        seen = np.insert(seen, where[~found], self.scans)
+        if len(known) > self.config.max_voxels:
+            recent = np.sort(np.argpartition(-seen, self.config.max_voxels - 1)[: self.config.max_voxels])
+            known, seen = known[recent], seen[recent]
+        self.moving_codes, self.moving_seen = known, seen
+
+    def holds_moving(self, codes: np.ndarray) -> np.ndarray:
+        """(N,) bool: voxels (codes) where moving points were seen within the memory."""
+        if len(self.moving_codes) == 0:
+            return np.zeros(len(codes), bool)
+        where = np.minimum(np.searchsorted(self.moving_codes, codes), len(self.moving_codes) - 1)
+        return (self.moving_codes[where] == codes) & (self.moving_seen[where] > self.scans - self.memory_scans)
 
     def insert(self, points: np.ndarray, normals: np.ndarray, centre: np.ndarray) -> int:
         """Add points (odometry frame) with their normals in voxels not yet occupied (one observation each), then
@@ -194,7 +255,7 @@ class VoxelMap:
             near = np.flatnonzero(np.einsum("ij,ij->i", local, local) < image.farthest ** 2)
             through = near[image.seen_through(local[near], self.stored_normals[near] @ pose[:3, :3].astype(np.float32),
                                               self.config.voxel * np.sqrt(3.0))]
-            self.evidence[through] -= 1
+            self.evidence[through] -= self.config.miss_weight
             gone = through[self.evidence[through] <= 0]
             keep[gone] = False
             self.cleared += len(gone)
