@@ -124,6 +124,11 @@ class PlannerNode(Node):
         self._said_if(False, "odometry")
         self._tick(odometry)
 
+    @property
+    def patience_s(self) -> float:
+        """How old odometry and obstacles may get (by the clock) before they no longer count: the latency compensated."""
+        return max(self.config.max_latency_s, self.config.stale_after_s)
+
     def _tick(self, odometry: OdometryEstimate) -> None:
         """One plan from the odometry carried forward to now, with the newest obstacles."""
         self.last_tick_s = self.get_clock().now_s()
@@ -183,7 +188,7 @@ class PlannerNode(Node):
         # newer than the odometry are placed by it carried forward; from before a restart they lie far in the future.
         # Planning again while odometry is late, the picture ages with the clock too: older than the latency the
         # planner compensates, it is stale (when stamps and the clock agree: a bag replayed without /clock differs)
-        patience = max(self.config.max_latency_s, self.config.stale_after_s)
+        patience = self.patience_s
         now_ns = self.get_clock().now_ns()
         clock_agrees = 0 <= now_ns - stamp_ns <= patience * 1e9
         aged = obstacles is not None and clock_agrees and (now_ns - obstacles.stamp_ns) * 1e-9 > patience
@@ -217,7 +222,7 @@ class PlannerNode(Node):
             return
         now = self.get_clock().now_s()
         age = now - self.last_odometry_s
-        if abs(age) > max(self.config.max_latency_s, self.config.stale_after_s):  # negative: from before a restart
+        if abs(age) > self.patience_s:  # negative: from before a restart
             self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s old): braking")
             self._publish(braking_on_the_arc(self.last_command, self.config.vehicle.max_decel * self.config.control_period))
         elif age > LATE_ODOMETRY_PERIODS * self.config.control_period and now - self.last_tick_s >= self.config.control_period:
