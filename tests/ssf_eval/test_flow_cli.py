@@ -49,3 +49,11 @@ def test_eval_on_simulator_pairs(capsys):
     assert main(["eval", "flow", "--scenario", "urban_100", "--frames", "2", "--estimators", "zero", "rigid"]) == 0
     table = capsys.readouterr().out
     assert "urban_100" in table and table.count("dynamic") == 2
+
+
+def test_bench_on_whole_scans_runs_the_nodes_configuration(tmp_path):
+    out = tmp_path / "bench.json"
+    assert main(["bench", "flow", "--frames", "1", "--scenario", "synthetic", "--protocol", "whole", "--estimators",
+                 "ego", "--json", str(out)]) == 0
+    preprocess = json.loads(out.read_text())["config"]["flow"]["preprocess"]
+    assert preprocess["remove_ground"] and preprocess["points_share"] > 0  # the flow node's whole-scan defaults

@@ -105,7 +105,8 @@ def run_bench(args: argparse.Namespace) -> int:
     if args.json:
         check_writable(args.json, "result file")
     torch.set_num_threads(args.threads)
-    estimators = build_estimators(args.estimators, args, skip_missing=False)
+    whole = args.protocol == "whole"
+    estimators = build_estimators(args.estimators, args, skip_missing=False, whole_scans=whole)
     count = max(2, min(args.frames, 5))
     if args.scenario == "synthetic":
         pairs = [synthetic_pair(seed, agents=20, ego_step=1.0) for seed in range(count)]
@@ -130,5 +131,5 @@ def run_bench(args: argparse.Namespace) -> int:
     print(f"peak_rss_mb {peak:.0f} (torch threads {args.threads})")
     if args.json:
         write_result(args.json, {"estimators": figures, "peak_rss_mb": peak, "threads": args.threads},
-                     {"flow": flow_config(args), "estimators": args.estimators, "scenario": args.scenario})
+                     {"flow": flow_config(args, whole_scans=whole), "estimators": args.estimators, "scenario": args.scenario})
     return 0
