@@ -61,6 +61,8 @@ class GraphBench:
     episode_time_s: float = 0.0  # simulated seconds driven by then
     episodes: dict[str, int] = field(default_factory=dict)  # every drive that ended, by outcome
     episodes_requested: int = 1  # --episodes: 1 ends the measurement with the first drive, 0 drives back to back
+    distance_m: float = 0.0  # metres the ego drove, every drive of the run together
+    average_speed_mps: float = 0.0  # distance_m over the simulated seconds driven
 
 
 class Probe:
@@ -78,6 +80,7 @@ class Probe:
         self.diagnostics: dict[str, dict[str, float]] = {}
         self.episode: tuple[str, float] = ("running", 0.0)
         self.ended: list[tuple[str, float]] = []  # every drive that ended: outcome, simulated seconds
+        self.driven: list[tuple[float, float]] = []  # per drive, the latest (simulated seconds, metres) reported
         self.node.create_subscription("rosgraph_msgs/msg/Clock", topics.CLOCK, self.on_clock, QOS_DEFAULT)
         self.node.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA,
                                       raw=True)
@@ -93,6 +96,9 @@ class Probe:
                  msg.OUTCOME_TIMEOUT: "timeout"}
         outcome = (names.get(msg.outcome, f"outcome {msg.outcome}"), float(msg.time))
         with self.lock:
+            if not self.driven or msg.time < self.driven[-1][0]:  # the clock went back: the next drive
+                self.driven.append((0.0, 0.0))
+            self.driven[-1] = (float(msg.time), float(msg.distance))
             if outcome[0] != "running":
                 self.ended.append(outcome)
             if self.episode[0] == "running":  # the first drive's outcome stays once it is known
@@ -263,6 +269,7 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, e
         commands = [wall for wall in probe.commands if wall >= window_start]
         latency, answered = latencies_ms(probe, window_start)
         ended = collections.Counter(outcome for outcome, _ in probe.ended)
+        driven_s, distance = (float(sum(column)) for column in zip((0.0, 0.0), *probe.driven))
     answered_scans = len(answered & set(scans))
     return GraphBench(
         duration_s=round(measured, 2), scenario=scenario, scans=len(scans),
@@ -272,7 +279,8 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, e
         scans_dropped_ratio=1.0 - answered_scans / len(scans) if scans else 1.0,
         nodes=node_rows(probe, samples, window_start), episode=probe.episode[0],
         episode_time_s=round(probe.episode[1], 2), episodes=dict(ended),
-        episodes_requested=episodes)
+        episodes_requested=episodes, distance_m=round(distance, 1),
+        average_speed_mps=round(distance / driven_s, 2) if driven_s > 0 else 0.0)
 
 
 def format_bench(bench: GraphBench) -> str:
@@ -281,6 +289,7 @@ def format_bench(bench: GraphBench) -> str:
     p95 = f"{bench.latency_p95_ms:.0f}" if bench.latency_p95_ms is not None else "-"
     lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
              f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %",
+             f"the ego drove {bench.distance_m:.0f} m at {bench.average_speed_mps:.1f} m/s on average",
              f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'RSS MB':>7} {'MB/10min':>9}"]
     if bench.episodes_requested != 1 and bench.episodes:
         ended = ", ".join(f"{count} {outcome}" for outcome, count in sorted(bench.episodes.items()))

@@ -20,6 +20,7 @@ class ScriptedProbe:
         self.clock_wall = {100: [10.0], 200: [10.1], 300: [10.2], 400: [10.3]}
         self.scans = [(10.0, 100), (10.1, 200), (10.2, 300), (10.3, 400)]
         self.odometry = [(10.25, 100), (10.45, 300)]  # scan 200 and 400 never answered
+        self.driven: list[tuple[float, float]] = []
         self.commands = [10.27, 10.29, 10.5]  # the second command answers scan 100 again: counted once
         self.diagnostics = {"ssf_flow_node": {"scan_answered": 3, "hint_answered": 2, "scan_dropped": 1,
                                               "processing_ms_median": 40.0, "processing_ms_p95": 55.0}}
@@ -113,11 +114,15 @@ def test_a_drive_that_ended_early_is_said_with_its_outcome():
 def test_drives_back_to_back_keep_the_first_outcome_and_count_every_drive():
     result = messages.msg_type("ssf_interfaces/msg/EpisodeResult")
     probe = ScriptedProbe()
-    for outcome, time_s in ((0, 5.0), (2, 13.5), (0, 1.0), (1, 96.0), (0, 2.0)):
+    for outcome, time_s, distance in ((0, 5.0, 10.0), (2, 13.5, 30.0), (0, 1.0, 2.0), (1, 96.0, 400.0), (0, 2.0, 3.0)):
         Probe.on_episode(probe, result(header=messages.header(0, ""), scenario="urban_200", seed=3, outcome=outcome,
-                                       time=time_s, distance=1.0, average_speed=1.0, min_clearance=1.0, num_agents=200))
+                                       time=time_s, distance=distance, average_speed=1.0, min_clearance=1.0,
+                                       num_agents=200))
     assert probe.episode == ("collision", 13.5)
     assert probe.ended == [("collision", 13.5), ("success", 96.0)]
+    assert probe.driven == [(13.5, 30.0), (96.0, 400.0), (2.0, 3.0)]  # each drive's last report: 433 m in 111.5 s
     bench = GraphBench(3600.0, "urban_200", 36000, 3.0, 1.0, 2.0, 0.7, episode="collision", episode_time_s=13.5,
                        episodes={"collision": 1, "success": 1}, episodes_requested=0)
     assert "drives ended back to back: 1 collision, 1 success" in format_bench(bench)
+    bench.distance_m, bench.average_speed_mps = 433.0, 3.88
+    assert "the ego drove 433 m at 3.9 m/s on average" in format_bench(bench)

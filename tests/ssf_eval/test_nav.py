@@ -8,6 +8,7 @@ import subprocess
 import sys
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from ssf_common.errors import ConfigError
@@ -81,10 +82,10 @@ def test_cells_keep_the_pose_sources_apart():
 
 def test_the_delay_line_answers_one_scan_in_n_each_late_as_a_loaded_graph():
     line = DelayLine(latency_s=0.3, every=2, dt=0.1)
-    seen = [line.through(tick, f"scan {tick}") for tick in range(8)]
-    # scans 0, 2, 4, 6 are answered, each 3 ticks later; before the first answer the planner has nothing
-    assert seen == [None, None, None, "scan 0", "scan 0", "scan 2", "scan 2", "scan 4"]
-    assert DelayLine(0.0, 1, 0.1).through(5, "now") == "now"  # lockstep: the answer of this very scan
+    seen = [line.through(tick, f"scan {tick}", f"pose {tick}") for tick in range(8)]
+    # scans 0, 2, 4, 6 are answered, each 3 ticks later, with the pose of their scan; before the first, nothing
+    assert seen == [None, None, None, *[(f"scan {k}", f"pose {k}") for k in (0, 0, 2, 2, 4)]]
+    assert DelayLine(0.0, 1, 0.1).through(5, "now", "here") == ("now", "here")  # lockstep: this very scan
     with pytest.raises(ConfigError, match="answer_every"):
         DelayLine(0.1, 0, 0.1)
 
@@ -96,6 +97,12 @@ def test_late_perception_trials_are_keyed_apart_and_drive():
     ticks = [loop.tick() for _ in range(12)]
     assert all(tick.obstacles is None for tick in ticks[:8])  # the first answer comes 8 ticks after its scan
     assert ticks[8].obstacles is not None and ticks[8].obstacles.stamp_ns == 0  # ... and is the first scan's
+    assert loop.delay.newest[1].stamp_ns == 300_000_000  # scan 3 answered at tick 11: its pose comes as late ...
+    for tick in ticks[8:]:  # ... and is carried forward to now by the commands sent since: where the car is
+        assert tick.state.stamp_ns == ticks.index(tick) * 100_000_000
+        # (within 0.15 m at full acceleration: the simulator changes speed once per step, the planner continuously)
+        assert np.hypot(tick.state.x - tick.pose[0, 3], tick.state.y - tick.pose[1, 3]) < 0.15
+    assert ticks[-1].state.speed > 2.0  # the late pose's speed is carried forward too (the scan's was lower)
 
 
 def test_a_filmed_trial_writes_its_video(tmp_path):

@@ -22,7 +22,8 @@ from ssf_eval.nav.perception import ODOM_FRAME, Observation, make_perception
 from ssf_eval.nav.film import TrialFilm
 from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose
 from ssf_planner_node.core.config import PlannerConfig
-from ssf_planner_node.core.frames import vehicle_state
+from ssf_planner_node.core.frames import carried_forward, vehicle_state
+from ssf_planner_node.core.models import Command
 from ssf_planner_node.core.planner import RdaPlanner, VehicleState
 from ssf_planner_node.core.route import Route
 
@@ -136,9 +137,14 @@ class Tick:
     plan: Plan | None = None  # the MPC plan (odometry frame); None for the follower
 
 
+SENT_KEPT = 100  # commands kept to carry a late pose forward: 10 s at 10 Hz, far more than any latency
+
+
 class DelayLine:
-    """Perception as a loaded real-time graph delivers it: one scan in `every` answered, each `latency_s` late; the
-    planner plans with the newest answer that has arrived (None before the first)."""
+    """Perception as a loaded real-time graph delivers it: one scan in `every` answered, each `latency_s` late, the
+    obstacles and the pose of a scan together (the odometry answers the same scan); the planner plans with the newest
+    answer that has arrived (None before the first), its pose carried forward to now by the commands sent since, as
+    the planner node does."""
 
     def __init__(self, latency_s: float, every: int, dt: float) -> None:
         if not (np.isfinite(latency_s) and latency_s >= 0):
@@ -147,15 +153,15 @@ class DelayLine:
             raise ConfigError(f"perception must answer at least every scan (answer_every >= 1), got {every}")
         self.delay_ticks = int(round(latency_s / dt))
         self.every = every
-        self.pending: list[tuple[int, Obstacles]] = []  # (tick it arrives, answer)
-        self.newest: Obstacles | None = None
+        self.pending: list[tuple[int, Obstacles, VehicleState]] = []  # (tick it arrives, answer, pose of its scan)
+        self.newest: tuple[Obstacles, VehicleState] | None = None
 
-    def through(self, tick: int, obstacles: Obstacles) -> Obstacles | None:
-        """The answer the planner has at this tick, given what perception made of this tick's scan."""
+    def through(self, tick: int, obstacles: Obstacles, state: VehicleState) -> tuple[Obstacles, VehicleState] | None:
+        """The answer the planner has at this tick (obstacles, state at their scan), given this tick's scan."""
         if tick % self.every == 0:
-            self.pending.append((tick + self.delay_ticks, obstacles))
+            self.pending.append((tick + self.delay_ticks, obstacles, state))
         while self.pending and self.pending[0][0] <= tick:
-            self.newest = self.pending.pop(0)[1]
+            self.newest = self.pending.pop(0)[1:]
         return self.newest
 
 
@@ -187,6 +193,7 @@ class ClosedLoop:
         # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
         settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
         self.planner = None if self.follower else RdaPlanner(settings, drive)
+        self.sent: list[tuple[int, Command]] = []  # (stamp, command) the planner sent, to carry a late pose forward
         self.solve_ms: list[float] = []
         self.perceive_ms: list[float] = []
         self.step_ms: list[float] = []
@@ -210,17 +217,28 @@ class ClosedLoop:
         else:
             obstacles = self.perception.observe(Observation(frame, lidar_pose, world_to_odom))
             if self.delay is not None:
-                obstacles = self.delay.through(frame.index, obstacles)
+                obstacles, state = self._late(frame.index, obstacles, state)
             self.perceive_ms.append((time.perf_counter() - started) * 1e3)
             step = self.planner.step(state, obstacles)
             self.solve_ms.append(step.solve_ms)
             command, status = VelocityCommand(step.command.linear, step.command.angular), step.status.value
             plan = step.plan
+        self.sent.append((frame.stamp_ns, Command(command.linear, command.angular)))
+        del self.sent[:-SENT_KEPT]
         started = time.perf_counter()
         self.frame = self.sim.step(command)
         self.step_ms.append((time.perf_counter() - started) * 1e3)
         self.outcome = _judge(self.sim, self.frame, self.route, self.world_to_odom, self.time_limit, self.progress)
         return Tick(state, pose, obstacles, command, status, plan)
+
+    def _late(self, tick: int, obstacles: Obstacles, state: VehicleState) -> tuple[Obstacles | None, VehicleState]:
+        """What the planner has now with perception that late: the newest answer's obstacles, and its pose carried
+        forward to now by the commands sent since (before the first answer: no obstacles, the pose of now)."""
+        answer = self.delay.through(tick, obstacles, state)
+        if answer is None:
+            return None, state
+        limits = self.planner.config.vehicle
+        return answer[0], carried_forward(answer[1], self.sent, state.stamp_ns, limits.max_accel, limits.max_decel)
 
     def _where(self, frame) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
         """Where the ego believes it is: odom <- base_link, odom <- lidar, odom <- world and its speed, from the
