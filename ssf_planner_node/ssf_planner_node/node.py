@@ -133,8 +133,7 @@ class PlannerNode(Node):
         """One plan from the odometry carried forward to now, with the newest obstacles."""
         self.last_tick_s = self.get_clock().now_s()
         state = self._now(state_of(odometry))
-        obstacles = self._obstacles_now(odometry)
-        stale = obstacles is None
+        obstacles, stale = self._obstacles_now(odometry)
         step = self.planner.step(state, obstacles, stale=stale)
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
@@ -172,37 +171,44 @@ class PlannerNode(Node):
         frame = self.planner.route.frame_id if self.planner.route is not None else "odom"
         return replace(odometry, pose=self.anchor @ odometry.pose, frame_id=frame)
 
-    def _obstacles_now(self, odometry: OdometryEstimate) -> Obstacles | None:
-        """The newest obstacles in the route's frame, or None when they are stale or cannot be placed."""
+    def _obstacles_now(self, odometry: OdometryEstimate) -> tuple[Obstacles | None, bool]:
+        """The newest obstacles in the route's frame (None when there are none or they cannot be placed), and whether
+        they are stale: an old picture of the road still holds the parked cars, so it is kept, at a capped speed."""
         odom_frame, stamp_ns = odometry.frame_id, odometry.stamp_ns
         route_frame = self.planner.route.frame_id if self.planner.route is not None else odom_frame
         if route_frame != odom_frame:
             self._said_if(True, "frames", f"route frame '{route_frame}' is not the odometry frame '{odom_frame}': "
                           "obstacles cannot be placed")
-            return None
+            return None, True
         obstacles = self.obstacles
         if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
             obstacles = obstacles.transformed(self.anchor, route_frame)
-        age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
-        # perception answers before odometry (which waits for the next scan's flow): obstacles up to max_latency_s
-        # newer than the odometry are placed by it carried forward; from before a restart they lie far in the future.
-        # Planning again while odometry is late, the picture ages with the clock too: older than the latency the
-        # planner compensates, it is stale (when stamps and the clock agree: a bag replayed without /clock differs)
+        # perception answers before odometry (which waits for the next scan's flow): obstacles up to the compensated
+        # latency newer than the odometry are placed by it carried forward; from before a restart they lie far in the
+        # future and are dropped. Planning again while odometry is late, the picture ages with the clock too: older
+        # than the latency the planner compensates it is stale (when stamps and the clock agree: a bag replayed
+        # without /clock differs), and so is one older than the odometry by stale_after_s
         patience = self.patience_s
+        age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
+        if obstacles is None or -age > patience:
+            self._said_if(True, "obstacles", f"no obstacles ({'none yet' if obstacles is None else 'from before a restart'}"
+                          f"): speed capped at {self.config.stale_speed:g} m/s")
+            return None, True
         now_ns = self.get_clock().now_ns()
         clock_agrees = 0 <= now_ns - stamp_ns <= patience * 1e9
-        aged = obstacles is not None and clock_agrees and (now_ns - obstacles.stamp_ns) * 1e-9 > patience
-        if age > self.config.stale_after_s or -age > patience or aged:
-            self._said_if(True, "obstacles", f"obstacles are stale ({'none yet' if obstacles is None else f'{age:.1f} s old'}): "
-                          f"speed capped at {self.config.stale_speed:g} m/s")
-            return None
+        aged = clock_agrees and (now_ns - obstacles.stamp_ns) * 1e-9 > patience
+        stale = age > self.config.stale_after_s or aged
+        self._said_if(stale, "obstacles", f"obstacles are stale ({age:.1f} s older than the odometry"
+                      f"{f', {(now_ns - obstacles.stamp_ns) * 1e-9:.1f} s by the clock' if aged else ''}): the last ones "
+                      f"kept, speed capped at {self.config.stale_speed:g} m/s")
         pose = self.poses.at(obstacles.stamp_ns)
         if pose is None and obstacles.stamp_ns > stamp_ns:
             pose = self._carried_pose(odometry, obstacles.stamp_ns)
         placed = obstacles_in_route_frame(obstacles, route_frame, pose, self.mounts.get(obstacles.frame_id))
-        self._said_if(placed is None, "obstacles", f"obstacles in frame '{obstacles.frame_id}' cannot be placed (no pose "
-                      f"at their stamp or no {BASE_FRAME} -> {obstacles.frame_id} transform): speed capped")
-        return placed
+        if placed is None:
+            self._said_if(True, "obstacles", f"obstacles in frame '{obstacles.frame_id}' cannot be placed (no pose at "
+                          f"their stamp or no {BASE_FRAME} -> {obstacles.frame_id} transform): speed capped")
+        return placed, stale or placed is None
 
     def _carried_pose(self, odometry: OdometryEstimate, stamp_ns: int) -> np.ndarray:
         """The odometry pose (odom <- base_link) carried forward to a later stamp by the commands sent since."""

@@ -99,7 +99,7 @@ def test_stale_obstacles_cap_the_speed_and_stale_odometry_brakes_each_said_once(
     assert commands[-1].linear.x < commands[braking - 1].linear.x and commands[-1].angular.z == 0.0
     time.sleep(0.3)
     log = capfd.readouterr().err
-    assert log.count("obstacles are stale") == 1 and log.count("odometry is stale") == 1
+    assert log.count("no obstacles (none yet)") == 1 and log.count("odometry is stale") == 1
 
 
 def test_a_bad_route_parameter_is_a_config_error():
@@ -178,16 +178,17 @@ def test_obstacles_newer_than_the_odometry_are_placed_by_it_carried_forward(grap
                              centres=np.array([[10.0, 0.0, 0.0]]), sizes=np.array([[4.0, 2.0, 1.5]]), yaws=np.zeros(1),
                              velocities=np.zeros((1, 3)), velocity_covariances=np.zeros((1, 3, 3)),
                              yaw_rates=np.zeros(1), point_counts=np.array([50]), confidences=np.ones(1))
-    placed = node._obstacles_now(estimate)
-    assert placed is not None and "obstacles" not in node.said
+    placed, stale = node._obstacles_now(estimate)
+    assert placed is not None and not stale and "obstacles" not in node.said
     assert placed.centres[0, 0] == pytest.approx(12.0, abs=0.05)  # 10 m ahead of where the car is 0.4 s on at 5 m/s
     node.obstacles = Obstacles.empty(5_000_000_000, "base_link")  # far in the future: from before a restart
-    assert node._obstacles_now(estimate) is None and "obstacles" in node.said
+    assert node._obstacles_now(estimate) == (None, True) and "obstacles" in node.said
 
 
 def test_obstacles_older_than_the_compensated_latency_are_stale_when_planning_again(graph):
     """While odometry is late the timer plans again from it; the obstacles age with the clock, and once older than
-    the latency the planner compensates (max_latency_s) they no longer count: the speed is capped."""
+    the latency the planner compensates (max_latency_s) they are stale: the speed is capped, and they are kept (an old
+    picture still holds the parked cars; planning as if the road were empty drove into them)."""
     node, _publishers, _commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]")
     now = node.get_clock().now_ns()
     estimate = OdometryEstimate(now - 900_000_000, np.eye(4), np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]),
@@ -195,6 +196,7 @@ def test_obstacles_older_than_the_compensated_latency_are_stale_when_planning_ag
     for stamp in (now - 1_200_000_000, now - 950_000_000, estimate.stamp_ns):  # poses to place obstacles with
         node.poses.add(stamp, np.eye(4))
     node.obstacles = Obstacles.empty(now - 950_000_000, "base_link")
-    assert node._obstacles_now(estimate) is not None  # 0.95 s old: within the compensated latency
+    assert node._obstacles_now(estimate)[1] is False  # 0.95 s old: within the compensated latency
     node.obstacles = Obstacles.empty(now - 1_200_000_000, "base_link")  # 0.3 s before the odometry: fine by it ...
-    assert node._obstacles_now(estimate) is None and "obstacles" in node.said  # ... but 1.2 s old by the clock
+    placed, stale = node._obstacles_now(estimate)  # ... but 1.2 s old by the clock: stale, and still there
+    assert stale and placed is not None and "obstacles" in node.said
