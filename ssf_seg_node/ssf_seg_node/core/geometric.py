@@ -1,7 +1,8 @@
 """The learning-free segmenter: motion relative to the static scene, clusters of what moves, a rigid test per cluster.
 
 The classical answer to motion segmentation: compensate the ego motion, keep the off-ground points whose residual
-motion is fast enough, cluster them, and call a cluster a moving object when it is big enough and moves rigidly."""
+motion is fast enough, cluster them, call a cluster a moving object when it is big enough and moves rigidly, and join
+the pieces of one object: neighbours in the sensor's view that move alike and together fit one object."""
 
 from __future__ import annotations
 
