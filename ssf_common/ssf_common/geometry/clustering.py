@@ -1,4 +1,5 @@
-"""Clustering of point sets: connected components of occupied voxels (fast, exact), and DBSCAN / HDBSCAN from
+"""Clustering of point sets: connected components of occupied voxels (fast, exact) or of points within the scan's
+measured point spacing, clusters that neighbour each other in the sensor's view, and DBSCAN / HDBSCAN from
 scikit-learn where a density clustering is wanted. Labels are 0..count-1; -1 is noise."""
 
 from __future__ import annotations
@@ -78,6 +79,23 @@ def angular_spacing(points: np.ndarray, sample: int = 2048, seed: int = 0, neigh
     pick = np.random.default_rng(seed).choice(points.shape[0], min(sample, points.shape[0]), replace=False)
     gaps = cKDTree(points).query(points[pick], k=neighbours + 1)[0][:, -1]
     return float(np.median(gaps / np.maximum(np.linalg.norm(points[pick], axis=1), 1e-6)))
+
+
+def angular_neighbours(points: np.ndarray, labels: np.ndarray, angle: float, cell: float) -> np.ndarray:
+    """(M, 2) pairs a < b of labels (>= 0) with points (sensor frame) within `angle` (rad) of each other as the sensor
+    sees them, at any ranges: neighbours in the scan, one point per `cell` voxel looked at."""
+    valid = np.flatnonzero(np.asarray(labels) >= 0)
+    if valid.size == 0:
+        return np.zeros((0, 2), np.int64)
+    xyz = np.asarray(points[valid, :3], np.float64)
+    keys = np.floor(xyz / cell).astype(np.int64)
+    keys -= keys.min(axis=0)
+    span = keys.max(axis=0) + 1
+    _, first = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_index=True)
+    directions = xyz[first] / np.maximum(np.linalg.norm(xyz[first], axis=1, keepdims=True), 1e-6)
+    near = cKDTree(directions).query_pairs(2.0 * np.sin(angle / 2.0), output_type="ndarray")
+    pairs = np.sort(np.asarray(labels)[valid[first]][near], axis=1)
+    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
 
 
 def dbscan(features: np.ndarray, eps: float, min_samples: int = 5) -> Clustering:
