@@ -193,7 +193,7 @@ class SimBridgeNode(Node):
             self.pub_obstacles.publish(ros_messages.obstacles(frame.agents, stamp))
         if self.config.markers and self.pub_markers.get_subscription_count():
             self.pub_markers.publish(ros_messages.markers(frame.agents, stamp))
-        if previous is not None and frame.flow is not None and self.pub_truth.get_subscription_count():
+        if previous is not None and self.pub_truth.get_subscription_count() and frame.flow is not None:
             self.pub_truth.publish(ros_messages.truth_cloud(previous.scan, frame.flow, previous.stamp_ns))
         self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))
         if frame.index % 10 == 0:

@@ -30,6 +30,7 @@ from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
 LATE_ODOMETRY_PERIODS = 2  # odometry older than this many control periods is late: the timer plans in between
+CLOCK_AGREEMENT_S = 10.0  # stamps this close behind the clock are on it (a bag replayed without /clock is not)
 
 
 class PlannerNode(Node):
@@ -134,7 +135,10 @@ class PlannerNode(Node):
         self.last_tick_s = self.get_clock().now_s()
         state = self._now(state_of(odometry))
         obstacles, stale = self._obstacles_now(odometry)
-        step = self.planner.step(state, obstacles, stale=stale)
+        late = self._on_clock(odometry.stamp_ns) and state.stamp_ns - odometry.stamp_ns > self.patience_s * 1e9
+        self._said_if(late, "late odometry", f"odometry is {(state.stamp_ns - odometry.stamp_ns) * 1e-9:.1f} s behind "
+                      f"the clock: planned from it carried forward, speed capped at {self.config.stale_speed:g} m/s")
+        step = self.planner.step(state, obstacles, stale=stale or late)
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
         if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
@@ -148,11 +152,14 @@ class PlannerNode(Node):
         """The odometry's state carried forward to now by the commands sent since its stamp: the perception chain's
         latency would otherwise put the plan's start where the car was, not where it is."""
         now_ns = self.get_clock().now_ns()
-        latency = (now_ns - state.stamp_ns) * 1e-9
-        if not 0.0 < latency <= self.config.max_latency_s:
+        if self.config.max_latency_s == 0 or now_ns <= state.stamp_ns or not self._on_clock(state.stamp_ns):
             return state
         vehicle = self.config.vehicle
         return carried_forward(state, list(self.sent), now_ns, vehicle.max_accel, vehicle.max_decel)
+
+    def _on_clock(self, stamp_ns: int) -> bool:
+        """Whether a stamp is on the clock's time line (not more than CLOCK_AGREEMENT_S behind it, not ahead)."""
+        return 0 <= self.get_clock().now_ns() - stamp_ns <= CLOCK_AGREEMENT_S * 1e9
 
     def _publish_state(self, stamp_ns: int, step: PlanStep) -> None:
         """The tick on /ssf/planner_state (what the viewer plots: solve time, fallbacks, clearance)."""
@@ -183,19 +190,19 @@ class PlannerNode(Node):
         obstacles = self.obstacles
         if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
             obstacles = obstacles.transformed(self.anchor, route_frame)
-        # perception answers before odometry (which waits for the next scan's flow): obstacles up to the compensated
-        # latency newer than the odometry are placed by it carried forward; from before a restart they lie far in the
-        # future and are dropped. Planning again while odometry is late, the picture ages with the clock too: older
-        # than the latency the planner compensates it is stale (when stamps and the clock agree: a bag replayed
-        # without /clock differs), and so is one older than the odometry by stale_after_s
-        patience = self.patience_s
+        # perception answers before odometry (which waits for the next scan's flow): obstacles newer than the odometry
+        # are placed by it carried forward; from before a restart they lie ahead of the clock (without a clock: more
+        # than the compensated latency ahead of the odometry) and are dropped. Planning again while odometry is late,
+        # the picture ages with the clock too: older than the latency the planner compensates it is stale (when stamps
+        # are on the clock: a bag replayed without /clock is not), and so is one older than the odometry by
+        # stale_after_s
+        patience, now_ns, clock_agrees = self.patience_s, self.get_clock().now_ns(), self._on_clock(stamp_ns)
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
-        if obstacles is None or -age > patience:
+        restarted = obstacles is not None and (obstacles.stamp_ns > now_ns if clock_agrees else -age > patience)
+        if obstacles is None or restarted:
             self._said_if(True, "obstacles", f"no obstacles ({'none yet' if obstacles is None else 'from before a restart'}"
                           f"): speed capped at {self.config.stale_speed:g} m/s")
             return None, True
-        now_ns = self.get_clock().now_ns()
-        clock_agrees = 0 <= now_ns - stamp_ns <= patience * 1e9
         aged = clock_agrees and (now_ns - obstacles.stamp_ns) * 1e-9 > patience
         stale = age > self.config.stale_after_s or aged
         self._said_if(stale, "obstacles", f"obstacles are stale ({age:.1f} s older than the odometry"

@@ -200,3 +200,32 @@ def test_obstacles_older_than_the_compensated_latency_are_stale_when_planning_ag
     node.obstacles = Obstacles.empty(now - 1_200_000_000, "base_link")  # 0.3 s before the odometry: fine by it ...
     placed, stale = node._obstacles_now(estimate)  # ... but 1.2 s old by the clock: stale, and still there
     assert stale and placed is not None and "obstacles" in node.said
+
+
+def test_odometry_later_than_the_compensated_latency_is_still_carried_forward_and_caps_the_speed(graph):
+    """A loaded graph's odometry can come 1.2 s after its scan: planning from where the car was then (7 m back at
+    6 m/s) drove it into a parked car. It is carried forward by the commands sent since, whatever its age on the
+    clock, and past max_latency_s the speed is capped; obstacles newer than it by more than that are not taken for
+    ones from before a restart (those lie ahead of the clock)."""
+    from collections import deque
+    from dataclasses import replace
+
+    from ssf_planner_node.core.frames import state_of
+    from ssf_planner_node.core.models import Command
+
+    node, _publishers, _commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]")
+    now = node.get_clock().now_ns()
+    estimate = OdometryEstimate(now - 1_200_000_000, np.eye(4), np.eye(6), twist=np.array([6.0, 0, 0, 0, 0, 0.0]),
+                                frame_id="odom")
+    node.sent = deque([(now - 1_300_000_000, Command(6.0, 0.0))])
+    assert node._now(state_of(estimate)).x == pytest.approx(7.2, abs=0.1)  # where the car is now, not 7 m back
+    node.poses.add(estimate.stamp_ns, np.eye(4))
+    node.obstacles = replace(Obstacles.empty(now - 100_000_000, "base_link"), ids=np.array([1]), kinds=np.array([1]),
+                             centres=np.array([[10.0, 0.0, 0.0]]), sizes=np.array([[4.0, 2.0, 1.5]]), yaws=np.zeros(1),
+                             velocities=np.zeros((1, 3)), velocity_covariances=np.zeros((1, 3, 3)),
+                             yaw_rates=np.zeros(1), point_counts=np.array([50]), confidences=np.ones(1))
+    placed, stale = node._obstacles_now(estimate)  # 1.1 s newer than the odometry, 0.1 s old: fresh, placed
+    assert not stale and placed.centres[0, 0] == pytest.approx(16.6, abs=0.1)
+    node.odometry = estimate
+    node._tick(estimate)
+    assert "late odometry" in node.said and node.last_command.linear < 6.0  # slowing down towards the capped speed

@@ -96,8 +96,9 @@ class PlannerConfig(Section):
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
     stale_after_s: float = Field(0.5, gt=0.0, description="obstacles older than this (against the odometry) are stale; "
                                  "no odometry for longer than this and than max_latency_s brakes the car")
-    max_latency_s: float = Field(1.0, ge=0.0, description="odometry up to this much older than now is carried forward "
-                                 "to now by the commands sent since (latency compensation); 0: plan from its stamp")
+    max_latency_s: float = Field(1.0, ge=0.0, description="odometry is carried forward to now by the commands sent "
+                                 "since (latency compensation); older than this by the clock it caps the speed, and "
+                                 "obstacles older than this are stale; 0: plan from its stamp")
     vehicle: VehicleConfig = VehicleConfig()
     weights: WeightsConfig = WeightsConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
