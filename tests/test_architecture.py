@@ -93,3 +93,22 @@ def test_ssf_help_lists_every_command(capsys):
         listing = capsys.readouterr().out
         for command in commands:
             assert f"    {command}" in listing, f"{group} {command}"
+
+
+@pytest.mark.parametrize("module, name", [
+    ("ssf_flow_node.node", "FlowNode"), ("ssf_seg_node.node", "SegNode"), ("ssf_seg_node.fusion_node", "FusionNode"),
+    ("ssf_odom_node.node", "OdomNode"), ("ssf_planner_node.node", "PlannerNode"), ("sim_bridge.node", "SimBridgeNode"),
+])
+def test_no_node_shadows_the_middleware_nodes_own_machinery(module, name):
+    """A node's private helper named like one of the middleware Node's (a planner `_on_clock` once swallowed /clock
+    under simulated time) breaks the node silently; only the documented hooks may be overridden."""
+    import importlib
+
+    from ssf_common.middleware import Node
+
+    node_class = getattr(importlib.import_module(module), name)
+    hooks = {"on_shutdown"}
+    machinery = {attribute for attribute in vars(Node) if attribute.startswith("_") and not attribute.startswith("__")}
+    shadowed = {attribute for klass in node_class.__mro__[:node_class.__mro__.index(Node)] for attribute in vars(klass)
+                if attribute in machinery} - hooks
+    assert not shadowed, f"{name} redefines {sorted(shadowed)} of the middleware Node"

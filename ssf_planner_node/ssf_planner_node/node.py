@@ -135,7 +135,7 @@ class PlannerNode(Node):
         self.last_tick_s = self.get_clock().now_s()
         state = self._now(state_of(odometry))
         obstacles, stale = self._obstacles_now(odometry)
-        late = self._on_clock(odometry.stamp_ns) and state.stamp_ns - odometry.stamp_ns > self.patience_s * 1e9
+        late = self._on_timeline(odometry.stamp_ns) and state.stamp_ns - odometry.stamp_ns > self.patience_s * 1e9
         self._said_if(late, "late odometry", f"odometry is {(state.stamp_ns - odometry.stamp_ns) * 1e-9:.1f} s behind "
                       f"the clock: planned from it carried forward, speed capped at {self.config.stale_speed:g} m/s")
         step = self.planner.step(state, obstacles, stale=stale or late)
@@ -152,12 +152,12 @@ class PlannerNode(Node):
         """The odometry's state carried forward to now by the commands sent since its stamp: the perception chain's
         latency would otherwise put the plan's start where the car was, not where it is."""
         now_ns = self.get_clock().now_ns()
-        if self.config.max_latency_s == 0 or now_ns <= state.stamp_ns or not self._on_clock(state.stamp_ns):
+        if self.config.max_latency_s == 0 or now_ns <= state.stamp_ns or not self._on_timeline(state.stamp_ns):
             return state
         vehicle = self.config.vehicle
         return carried_forward(state, list(self.sent), now_ns, vehicle.max_accel, vehicle.max_decel)
 
-    def _on_clock(self, stamp_ns: int) -> bool:
+    def _on_timeline(self, stamp_ns: int) -> bool:
         """Whether a stamp is on the clock's time line (not more than CLOCK_AGREEMENT_S behind it, not ahead)."""
         return 0 <= self.get_clock().now_ns() - stamp_ns <= CLOCK_AGREEMENT_S * 1e9
 
@@ -196,7 +196,7 @@ class PlannerNode(Node):
         # the picture ages with the clock too: older than the latency the planner compensates it is stale (when stamps
         # are on the clock: a bag replayed without /clock is not), and so is one older than the odometry by
         # stale_after_s
-        patience, now_ns, clock_agrees = self.patience_s, self.get_clock().now_ns(), self._on_clock(stamp_ns)
+        patience, now_ns, clock_agrees = self.patience_s, self.get_clock().now_ns(), self._on_timeline(stamp_ns)
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
         restarted = obstacles is not None and (obstacles.stamp_ns > now_ns if clock_agrees else -age > patience)
         if obstacles is None or restarted:
