@@ -214,3 +214,37 @@ def test_boxes_corners_is_box_corners_for_many():
     expected = np.array([box_corners(centres[i], lengths[i], widths[i], yaws[i]) for i in range(9)])
     assert np.allclose(boxes_corners(centres, lengths, widths, yaws), expected, atol=1e-12)
     assert boxes_corners(np.zeros((0, 3)), np.zeros(0), np.zeros(0), np.zeros(0)).shape == (0, 4, 2)
+
+
+
+def sparse_scan_with_a_car(start: float, mount: float = 1.73, slope: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
+    """A 16-beam scan (-15..+15 deg every 2 deg, 0.2 deg azimuth) of a gently sloped ground z = -mount + slope * x
+    and a car (4.5 x 1.8 m, 0.3..1.6 m above the ground) from `start` m ahead: the points and which hit the car."""
+    elevation, azimuth = np.meshgrid(np.radians(np.arange(-15.0, 16.0, 2.0)), np.radians(np.arange(0.0, 360.0, 0.2)))
+    rays = np.column_stack([np.cos(elevation.ravel()) * np.cos(azimuth.ravel()),
+                            np.cos(elevation.ravel()) * np.sin(azimuth.ravel()), np.sin(elevation.ravel())])
+    with np.errstate(divide="ignore"):
+        ground = mount / (slope * rays[:, 0] - rays[:, 2])  # where z = -mount + slope * x along each ray
+    ground[(ground <= 0) | (ground > 100.0)] = np.inf
+    base = -mount + slope * (start + 2.25)
+    lower, upper = np.array([start, -0.9, base + 0.3]), np.array([start + 4.5, 0.9, base + 1.6])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        near, far = lower / rays, upper / rays
+    entry, leave = np.nanmax(np.minimum(near, far), axis=1), np.nanmin(np.maximum(near, far), axis=1)
+    car = np.where((entry <= leave) & (entry > 0), entry, np.inf)
+    distance = np.minimum(ground, car)
+    keep = np.isfinite(distance)
+    return rays[keep] * distance[keep, None], (car < ground)[keep]
+
+
+@pytest.mark.parametrize("start", [21.0, 34.0])  # between two ground rings; beyond the last one (27.7 m)
+def test_zone_ground_passes_under_a_car_whose_cells_hold_no_ground_return(start):
+    points, on_car = sparse_scan_with_a_car(start)
+    lowest_ring = on_car & (points[:, 2] < points[on_car, 2].min() + 0.05)
+    assert lowest_ring.sum() > 10
+    grid = height_above_ground(points, cell=2.0)
+    assert (grid[lowest_ring] < 0.08).all()  # the grid alone takes the car's lowest ring for the ground
+    zoned = height_above_ground(points, cell=2.0, zones=True)
+    assert (zoned[lowest_ring] > 0.3).all() and not ground_mask(points, zones=True)[on_car].any()
+    assert np.abs(zoned[~on_car]).max() < 0.1  # the sloped ground stays ground
+    np.testing.assert_array_equal(height_above_ground(points[:0], zones=True), np.zeros(0))

@@ -121,3 +121,19 @@ def test_scan_cache_prepares_each_scan_of_a_stream_once(monkeypatch):
     uncached = base.prepare(scans[1], scans[2], None, config)
     assert np.array_equal(uncached.sample1.indices, pairs[1].sample1.indices)  # the cache changes the work, not the answer
     assert np.array_equal(uncached.height1, pairs[1].height1)
+
+
+def test_zone_ground_keeps_a_cars_lowest_ring_between_sparse_ground_rings():
+    azimuth = np.radians(np.arange(0.0, 360.0, 0.2))
+    rings = [np.column_stack([r * np.cos(azimuth), r * np.sin(azimuth), np.full(azimuth.size, -1.73)])
+             for r in (6.5, 8.0, 9.8, 11.0, 14.0, 19.8, 33.0)]  # a 16-beam sensor's ground rings, none from 20 to 33 m
+    side = np.radians(np.arange(-2.0, 2.0, 0.2))
+    car = [np.column_stack([26.0 * np.cos(side), 26.0 * np.sin(side), np.full(side.size, -1.73 + lift)])
+           for lift in (0.45, 1.4)]  # its two rings, no ground return in or next to its cells
+    points = np.concatenate(rings + car).astype(np.float32)
+    lowest_ring = np.arange(len(points) - 2 * side.size, len(points) - side.size)
+    kept = {}
+    for zones in (False, True):
+        config = PreprocessConfig(points=64, points_share=1.0, remove_ground=True, max_range=100.0, ground_zones=zones)
+        kept[zones] = np.isin(lowest_ring, downsample(points, config, np.random.default_rng(0)).indices).mean()
+    assert kept[False] == 0.0 and kept[True] == 1.0  # the grid takes it for the ground, the zone's ground does not

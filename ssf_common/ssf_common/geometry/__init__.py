@@ -9,7 +9,7 @@ they are faster; torch only in `torch_ops`), no ROS.
 | `sampling` | one `Sampling` enum: random / voxel / farthest-point, and the index samplers |
 | `neighbours` | KD-tree kNN and radius queries, inverse-distance propagation, Chamfer distance |
 | `clustering` | connected components of voxels or within the measured point spacing, neighbours in the sensor's view; DBSCAN / HDBSCAN from scikit-learn |
-| `ground` | height above the local ground on a grid, ground mask |
+| `ground` | height above the local ground on a grid (or per range and azimuth zone), ground mask |
 | `boxes` | minimum-area oriented rectangles of point sets |
 | `torch_ops` | the same for torch tensors inside networks: FPS, kNN and ball grouping (KD-tree on CPU, chunked elsewhere), gather, interpolation |
 """

@@ -66,7 +66,7 @@ def prepare_scan(points: np.ndarray, name: str, config: PreprocessConfig, key: b
     sampled the same way whichever pair it belongs to."""
     xyz = check_scan(points, name)
     key = fingerprint(xyz) if key is None else key
-    height = height_above_ground(xyz, config.ground_cell) if config.remove_ground else None
+    height = height_above_ground(xyz, config.ground_cell, config.ground_zones) if config.remove_ground else None
     rng = np.random.default_rng([config.seed, int.from_bytes(key[:8], "little")])
     return PreparedScan(xyz, downsample(xyz, config, rng, height), height)
 

@@ -33,6 +33,11 @@ class PreprocessConfig(Section):
                                 "objects keep their few points and near surfaces are thinned (whole scans)")
     ground_cell: float = Field(2.0, gt=0.0, description="grid cell (m) of the ground height estimate")
     ground_height: float = Field(0.3, gt=0.0, description="points this far above the local ground are not ground (m)")
+    ground_zones: bool = Field(False, description="where the ground is removed, a cell without a ground return (under "
+                               "a car, beyond a sparse sensor's last ground ring) takes the ground fitted along its "
+                               "range and azimuth zone where that is lower, so an object's lowest ring is not taken "
+                               "for the ground (the scan must be in its sensor's frame; off by default: no held-out "
+                               "gain on vlp16, README)")
     propagate_k: int = Field(3, ge=1, le=32, description="neighbours for inverse-distance flow propagation")
     propagate_radius: float = Field(1.0, gt=0.0, description="object motion reaches points left out of the sample "
                                     "within this distance (m); farther ones move with the ego motion")
@@ -89,8 +94,8 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
     candidates = crop(points, config)
     ground = None
     if config.remove_ground and candidates.size:
-        flat = (ground_mask(points[candidates], config.ground_cell, config.ground_height) if height is None
-                else height[candidates] < config.ground_height)
+        flat = (ground_mask(points[candidates], config.ground_cell, config.ground_height, config.ground_zones)
+                if height is None else height[candidates] < config.ground_height)
         ground = candidates[flat]
         ground = ground[rng.permutation(ground.size)[: config.ego_ground_points]]
         candidates = candidates[~flat]
