@@ -7,6 +7,7 @@ Stale obstacles cap the speed, stale odometry brakes, each said once."""
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
 from dataclasses import replace
 from typing import Any
@@ -30,6 +31,7 @@ from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
 LATE_ODOMETRY_PERIODS = 2  # odometry older than this many control periods is late: the timer plans in between
+SAY_AGAIN_S = 10.0  # a problem that keeps coming back is said again at most this often (counted in between)
 CLOCK_AGREEMENT_S = 10.0  # stamps this close behind the clock are on it (a bag replayed without /clock is not)
 
 
@@ -57,7 +59,9 @@ class PlannerNode(Node):
         self.last_tick_s: float | None = None
         self.last_command = Command(0.0, 0.0)
         self.sent: deque[tuple[int, Command]] = deque(maxlen=200)  # (clock stamp, command) for latency compensation
-        self.said: set[str] = set()
+        self.said: set[str] = set()  # the problems there are now
+        self._announced: set[str] = set()  # ... of which the onset was said (the others came back within SAY_AGAIN_S)
+        self._said_at: dict[str, float] = {}  # when each problem was last said (monotonic s)
         self.sequence = StampSequence()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
@@ -249,13 +253,22 @@ class PlannerNode(Node):
             linear=vector(x=float(command.linear), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=float(command.angular))))
 
     def _said_if(self, condition: bool, topic: str, text: str = "") -> None:
-        """Say a problem once while it lasts; forget it when it is over."""
+        """Say a problem once while it lasts, and once per SAY_AGAIN_S when it keeps coming back (a loaded graph's
+        latency hovers around the limits); say when it is over only if it was said."""
         if condition and topic not in self.said:
             self.said.add(topic)
-            self.get_logger().warning(text)
+            now = time.monotonic()
+            if now - self._said_at.get(topic, -SAY_AGAIN_S) >= SAY_AGAIN_S:
+                self._said_at[topic] = now
+                self._announced.add(topic)
+                self.get_logger().warning(text)
+            else:
+                self.stats.count(f"{topic.replace(' ', '_')}_again")
         elif not condition and topic in self.said:
             self.said.discard(topic)
-            self.get_logger().info(f"{topic} fresh again")
+            if topic in self._announced:
+                self._announced.discard(topic)
+                self.get_logger().info(f"{topic} fresh again")
 
     def _refresh(self) -> None:
         self.stats.set("fallbacks", self.planner.stats.fallbacks)

@@ -229,3 +229,14 @@ def test_odometry_later_than_the_compensated_latency_is_still_carried_forward_an
     node.odometry = estimate
     node._tick(estimate)
     assert "late odometry" in node.said and node.last_command.linear < 6.0  # slowing down towards the capped speed
+
+
+def test_a_problem_that_keeps_coming_back_is_said_once_per_window_and_counted(graph, capfd):
+    node, _publishers, _commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]")
+    for _ in range(5):  # latency hovering around a limit: stale, fresh, stale, ...
+        node._said_if(True, "late odometry", "odometry is late")
+        node._said_if(False, "late odometry")
+    time.sleep(0.2)
+    log = capfd.readouterr().err
+    assert log.count("odometry is late") == 1 and log.count("late odometry fresh again") == 1
+    assert node.stats.counts["late_odometry_again"] == 4
