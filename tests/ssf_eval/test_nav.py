@@ -73,6 +73,16 @@ def test_the_pose_from_ssf_odometry_drives_the_route():
     assert tick.pose.shape == (4, 4) and record.perception_ms_median > 0  # the odometry runs the SSF pipeline
 
 
+def test_a_busy_graph_perceives_every_nth_scan_and_the_pose_moves_on_between():
+    """--answer-every 3 with --pose ssf: the pipeline (and so the odometry) sees one scan pair in three, as the loaded
+    graph's flow node answers them, and the pose moves on at constant velocity in between."""
+    loop = ClosedLoop(TrialSpec("gt", 50, 100, 20.0, 20.0, "ssf", latency_s=0.3, answer_every=3))
+    ticks = [loop.tick() for _ in range(31)]
+    assert len(loop.ssf_pose.scans.iterations) == 10  # pairs (2, 3), (5, 6), ... (29, 30): one in three
+    assert loop.ssf_pose.odometry.steps == 10 and max(loop.pose_errors) < 0.3
+    assert ticks[-1].state.speed > 1.0  # it drives: the late pose is carried forward by the commands sent
+
+
 def test_cells_keep_the_pose_sources_apart():
     gt, ssf = fake_trial(TrialSpec("ssf", 50, 0)), replace(fake_trial(TrialSpec("ssf", 50, 0, pose="ssf")), pose="ssf")
     cells = summarise([gt, ssf, replace(ssf, seed=2, pose_error_max_m=0.4)])

@@ -183,7 +183,8 @@ class ClosedLoop:
         drive = self.route if spec.route_length is None else self._route(None)
         self.time_limit = spec.time_limit or max(60.0, scenario_limit * self.route.length / self.sim.world.route_length)
         self.follower = self.sim.follower() if spec.perception == "follower" else None
-        scans = ConsecutiveScans() if "ssf" in (spec.perception, spec.pose) and not self.follower else None
+        every = spec.answer_every  # the pipeline perceives only the scans a graph that busy answers
+        scans = ConsecutiveScans(every=every) if "ssf" in (spec.perception, spec.pose) and not self.follower else None
         self.perception = None if self.follower else make_perception(spec.perception, scans=scans)
         timed = spec.latency_s > 0 or spec.answer_every > 1
         self.delay = DelayLine(spec.latency_s, spec.answer_every, self.sim.dt) if timed and not self.follower else None

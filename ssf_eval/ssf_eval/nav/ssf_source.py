@@ -34,10 +34,13 @@ class PerceivedPair(NamedTuple):
 
 
 class ConsecutiveScans:
-    """The SSF pipeline over consecutive scans, run once per scan however many consumers ask."""
+    """The SSF pipeline over consecutive scans, run once per scan however many consumers ask; with `every` > 1 only on
+    every n-th scan (the previous scan towards it), as a busy graph answers the newest pair and drops the others."""
 
-    def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu") -> None:
+    def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu", every: int = 1) -> None:
         self.pipeline = Pipeline(config or whole_scan_config(), device)
+        self.every = every
+        self._added = 0  # scans added so far
         self._newest: tuple[int, np.ndarray] | None = None
         self._pair: PerceivedPair | None = None
         self.iterations: list[int] = []
@@ -52,7 +55,8 @@ class ConsecutiveScans:
         if self._newest is not None and self._newest[0] == stamp_ns:
             return self._pair
         previous, self._newest = self._newest, (stamp_ns, np.ascontiguousarray(points[:, :3], dtype=np.float32))
-        if previous is None:
+        index, self._added = self._added, self._added + 1
+        if previous is None or index % self.every:  # the first scan, or one a busy graph drops
             self._pair = None
             return None
         seen = self.pipeline.perceive(previous[1], self._newest[1], stamp_ns=previous[0], frame_id="lidar", follows=True)
@@ -93,7 +97,8 @@ class SsfPerception:
 
 class SsfPose:
     """The ego pose from SSF odometry: each scan's odometry once the next scan gave it its semantic flow (as the odometry
-    node publishes it, one scan late), carried to the newest scan by that flow's motion."""
+    node publishes it, one scan late), carried to the newest scan by that flow's motion; scans without an answer (a
+    busy graph's) move it on by the last motion, at constant velocity."""
 
     def __init__(self, mount: np.ndarray, scans: ConsecutiveScans, config: OdomConfig | None = None) -> None:
         self.mount = mount  # base_link <- lidar
@@ -101,15 +106,19 @@ class SsfPose:
         self.odometry = make_odometry("ssf", config)
         self.lidar_pose = mount.copy()  # odom <- lidar of the newest scan; odom is the first scan's base_link
         self.speed = 0.0  # forward speed (m/s) from the odometry's twist
+        self.motion = np.eye(4)  # lidar(previous scan) <- lidar(this scan) over the last period
 
     def update(self, stamp_ns: int, points: np.ndarray) -> np.ndarray:
         """odom <- lidar at this scan: the previous scan's odometry pose carried forward by its flow."""
         pair = self.scans.add(stamp_ns, points)
         if pair is None:
+            if self.odometry.steps:  # no answer for this scan: on by the last period's motion
+                self.lidar_pose = self.lidar_pose @ self.motion
             return self.lidar_pose
         fusion = pair.seen.fusion
         step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob))
         ahead = np.eye(4) if step.next_motion is None else invert(step.next_motion)
+        self.motion = ahead
         self.lidar_pose = self.mount @ step.pose @ ahead
         self.speed = float(step.twist[0])
         return self.lidar_pose
