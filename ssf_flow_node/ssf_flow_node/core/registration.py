@@ -26,7 +26,7 @@ class RegistrationConfig(Section):
     tolerance: float = Field(1e-6, gt=0.0, description="a stage ends once fitness and RMSE change by less than this "
                              "(relative; the height converges slowly on scans without a ground)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for target normals (few: sharp planes on sparse scans)")
-    coarse_samples: int = Field(3, ge=1, description="random samples the coarse stages may run on: where the "
+    coarse_samples: int = Field(5, ge=1, description="random samples the coarse stages may run on: where the "
                                 "refinement walks away from the first one's answer, the others' answers are "
                                 "refined too and the one that brings most points within refine_distance wins")
     seed: int = 0
