@@ -62,12 +62,14 @@ class EgoFlowEstimator:
     def __init__(self, preprocess: PreprocessConfig, registration: RegistrationConfig) -> None:
         self.preprocess = preprocess
         self.registration = registration
+        self.previous: np.ndarray | None = None  # the last pair's ego motion (a stream's constant velocity)
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
-        """Ego-motion flow for every point of pc1 (dynamic points of the mask kept out of the registration)."""
+        """Ego-motion flow for every point of pc1 (dynamic points of the mask kept out of the registration; the last
+        pair's ego motion one of its starts)."""
         pair = prepare(pc1, pc2, mask, self.preprocess)
         source = pair.sample1.points if pair.mask is None else pair.sample1.points[pair.mask <= 0.5]
-        ego = register(source, pair.sample2.points, self.registration)
+        ego = self.previous = register(source, pair.sample2.points, self.registration, prior=self.previous)
         return FlowResult(flow=rigid_flow(ego, pair.pc1), ego=ego)
 
 

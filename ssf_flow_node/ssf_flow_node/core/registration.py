@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from pydantic import Field
 
@@ -24,7 +26,17 @@ class RegistrationConfig(Section):
     tolerance: float = Field(1e-6, gt=0.0, description="a stage ends once fitness and RMSE change by less than this "
                              "(relative; the height converges slowly on scans without a ground)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for target normals (few: sharp planes on sparse scans)")
+    coarse_samples: int = Field(5, ge=1, description="random samples the coarse stages may run on: where the "
+                                "refinement walks away from the first one's answer, the others' answers are "
+                                "refined too and the one that brings most points within refine_distance wins")
     seed: int = 0
+
+
+class Alignment(NamedTuple):
+    """A transform (4x4) and the share of the ICP's points it brings within the correspondence distance."""
+
+    transform: np.ndarray
+    fitness: float
 
 
 def to_cloud(points: np.ndarray):
@@ -51,46 +63,85 @@ class ScanMatcher:
         normals = np.asarray(self.target.normals)
         return normals if len(normals) else np.zeros((len(self.target.points), 3))
 
-    def coarse(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False) -> np.ndarray:
-        """Transform T (4x4) that roughly maps source points onto the target surfaces, from far away."""
+    def coarse(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False,
+               sample: int = 0) -> np.ndarray:
+        """Transform T (4x4) that roughly maps source points onto the target surfaces, from far away (`sample`: which
+        random sample of the source to use)."""
         transform = np.eye(4) if initial is None else initial
         for distance in self.config.max_distances:
-            transform = self.icp(source, transform, self.config.source_points, distance, self.config.iterations, ordered)
+            transform = self.fit(source, transform, self.config.source_points, distance, self.config.iterations,
+                                 ordered, sample).transform
         return transform
 
     def refine(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> np.ndarray:
         """Transform T (4x4) near `initial` that maps source points accurately onto the target surfaces."""
-        return self.icp(source, initial, self.config.refine_points, self.config.refine_distance,
+        return self.refined(source, initial, ordered).transform
+
+    def refined(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> Alignment:
+        """The refinement from `initial`, with the share of its points it brings within refine_distance."""
+        return self.fit(source, initial, self.config.refine_points, self.config.refine_distance,
                         self.config.refine_iterations, ordered)
 
-    def align(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False) -> np.ndarray:
+    def align(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False,
+              prior: np.ndarray | None = None) -> np.ndarray:
         """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers.
 
+        A refinement that walks away from its coarse start by more than refine_distance, or ends that far from `prior`
+        (e.g. the previous pair's motion), is not trusted: the refinements from the coarse stages on the other samples
+        and from `prior` compete with it, and the one that brings most points within refine_distance wins (on a sparse
+        scan, ground rings that look the same wherever the sensor is, and objects moving with it, can pull the
+        refinement to no motion).
         ordered: the source is already in random order and each stage uses its first points, so that leaving a few
         points out (a motion mask) keeps the others' subsets, and the answer moves only as much as those points weigh."""
-        return self.refine(source, self.coarse(source, initial, ordered), ordered)
+        start = self.coarse(source, initial, ordered)
+        first = self.refined(source, start, ordered)
+        distance = self.config.refine_distance
+        trusted = same_motion(first.transform, start, distance)
+        if trusted and (prior is None or same_motion(first.transform, prior, distance)):
+            return first.transform
+        starts = [self.coarse(source, initial, ordered, sample) for sample in range(1, self.config.coarse_samples)]
+        starts += [] if prior is None else [np.asarray(prior, dtype=np.float64)]
+        candidates = [first] + [self.refined(source, other, ordered) for other in starts]
+        return max(candidates, key=lambda fit: fit.fitness).transform
 
-    def icp(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int,
-            ordered: bool = False) -> np.ndarray:
-        """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points."""
+    def fit(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int,
+            ordered: bool = False, sample: int = 0) -> Alignment:
+        """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points (the
+        `sample`-th random sample: ordered sources use their `sample`-th run of `points`)."""
         import open3d as o3d
 
         transform = np.asarray(initial, dtype=np.float64)
         if source.shape[0] < 10 or not self.usable:
-            return transform
+            return Alignment(transform, 0.0)
         if source.shape[0] > points:
-            source = source[:points] if ordered else source[
-                np.random.default_rng(self.config.seed).choice(source.shape[0], points, replace=False)]
+            source = source[(sample * points + np.arange(points)) % source.shape[0]] if ordered else source[
+                source_sample(source.shape[0], points, self.config.seed, sample)]
         pipelines = o3d.pipelines.registration
         result = pipelines.registration_icp(
             to_cloud(source), self.target, distance, transform,
             pipelines.TransformationEstimationPointToPlane(pipelines.TukeyLoss(k=distance / 2.0)),
             pipelines.ICPConvergenceCriteria(self.config.tolerance, self.config.tolerance, iterations),
         )
-        return np.asarray(result.transformation)
+        return Alignment(np.asarray(result.transformation), float(result.fitness))
+
+
+def source_sample(count: int, points: int, seed: int, sample: int) -> np.ndarray:
+    """Indices of `points` of `count` source points: the seeded random sample (0), or the `sample`-th run of a second
+    seeded order (wrapping around when it runs out)."""
+    if sample == 0:
+        return np.random.default_rng(seed).choice(count, points, replace=False)
+    order = np.random.default_rng([seed, 1]).permutation(count)
+    return order[(sample * points + np.arange(points)) % count]
+
+
+def same_motion(first: np.ndarray, second: np.ndarray, distance: float) -> bool:
+    """Whether two transforms move every point within `distance` (m) of a 1 m radius around the origin alike."""
+    rotation = np.linalg.norm(first[:3, :3] - second[:3, :3], ord=2)
+    return bool(np.linalg.norm(first[:3, 3] - second[:3, 3]) + rotation < distance)
 
 
 def register(source: np.ndarray, target: np.ndarray, config: RegistrationConfig,
-             initial: np.ndarray | None = None) -> np.ndarray:
-    """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers."""
-    return ScanMatcher(target, config).align(source, initial)
+             initial: np.ndarray | None = None, prior: np.ndarray | None = None) -> np.ndarray:
+    """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers (`prior`: a further
+    start, e.g. the previous pair's motion)."""
+    return ScanMatcher(target, config).align(source, initial, prior=prior)

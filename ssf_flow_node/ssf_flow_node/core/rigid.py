@@ -108,6 +108,7 @@ class PairState:
     all_surfaces: Surfaces  # all of scan t+1
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
     low: Plan | None  # those points seen from above
+    prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
     base_ego: np.ndarray | None = None
     base_dynamic: np.ndarray | None = None
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
@@ -172,6 +173,7 @@ class RigidFlowEstimator:
         key = fingerprint(pc1, pc2)
         if self.state is not None and self.state.key == key:
             return self.state
+        prior = None if self.state is None else self.state.base_ego
         pair = prepare(pc1, pc2, None, self.preprocess, self.scans)
         points1, points2 = pair.sample1.points, pair.sample2.points
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
@@ -190,18 +192,19 @@ class RigidFlowEstimator:
         if self.preprocess.remove_ground:  # whole scans: points on the ground take an object's motion only under it
             ground1 = pair.height1 < self.config.ground_clearance
             low = Plan(pair.pc1, np.flatnonzero(ground1))
-        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low)
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low, prior)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
-        """Ego motion from the points not called dynamic: a full alignment the first time on a pair, then a
-        refinement from it where the mask changed enough (the same mask always gives the same answer)."""
+        """Ego motion from the points not called dynamic: a full alignment the first time on a pair (the previous
+        pair's ego motion one of its starts), then a refinement from it where the mask changed enough (the same mask
+        always gives the same answer)."""
         keep = np.ones(state.source.shape[0], bool)
         if dynamic is not None:
             keep[: dynamic.size] = ~dynamic
         source = state.source[state.order[keep[state.order]]]
         if state.base_ego is None:
-            state.base_ego = state.matcher.align(source, ordered=True)
+            state.base_ego = state.matcher.align(source, ordered=True, prior=state.prior)
             state.base_dynamic = None if dynamic is None else dynamic.copy()
             return state.base_ego
         sampled = state.pair.sample1.indices.size

@@ -1,0 +1,51 @@
+"""Ego registration on a sparse scan pair whose identity start stays at no motion."""
+
+import numpy as np
+import pytest
+
+from ssf_common.geometry.se3 import make_pose
+from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, same_motion
+
+STEP = 0.6  # the sensor's forward motion between the scans (m)
+
+
+def street(rng: np.random.Generator) -> np.ndarray:
+    """Poles every 1.2 m on both sides of the drive (twice the step: a point lies halfway between two of them) and a
+    wall along it."""
+    poles = [np.column_stack([np.full(8, x), np.full(8, y), np.linspace(-1.5, 1.5, 8)])
+             for x in np.arange(-24.0, 24.1, 1.2) for y in (-4.0, 4.0)]
+    wall = np.column_stack([rng.uniform(-30, 30, 600), np.full(600, 9.0), rng.uniform(-1.5, 3.0, 600)])
+    return np.concatenate(poles + [wall])
+
+
+def rings(per_ring: int = 120) -> np.ndarray:
+    """Ground rings of a sparse sensor: the same in the sensor's frame wherever it drives."""
+    angles = np.linspace(0.0, 2.0 * np.pi, per_ring, endpoint=False)
+    return np.concatenate([np.column_stack([r * np.cos(angles), r * np.sin(angles), np.full(per_ring, -1.7)])
+                           for r in (5.0, 7.0, 10.0, 14.0, 20.0)])
+
+
+@pytest.fixture(scope="module")
+def sparse_pair():
+    rng = np.random.default_rng(0)
+    static = street(rng)
+    source = np.concatenate([static, rings()])
+    target = np.concatenate([static - [STEP, 0.0, 0.0], rings()])
+    return source[rng.permutation(len(source))], target, make_pose(-STEP)
+
+
+def test_a_single_identity_start_stays_at_no_motion(sparse_pair):
+    source, target, truth = sparse_pair
+    matcher = ScanMatcher(target, RegistrationConfig())
+    single = matcher.refine(source, matcher.coarse(source))
+    assert np.linalg.norm(single[:3, 3]) < 0.1  # the trap the robust registration must get out of
+
+
+def test_the_previous_motion_as_a_start_finds_the_true_motion(sparse_pair):
+    source, target, truth = sparse_pair
+    matcher = ScanMatcher(target, RegistrationConfig())
+    previous = make_pose(-0.55)  # a stream's constant velocity, a little off
+    found = matcher.align(source, prior=previous)
+    assert np.linalg.norm(found[:3, 3] - truth[:3, 3]) < 0.03
+    assert same_motion(matcher.align(source, prior=np.eye(4)), np.eye(4), 0.1)  # no better start: no change
+
