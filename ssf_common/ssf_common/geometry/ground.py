@@ -35,7 +35,7 @@ def grid_height_above_ground(points: np.ndarray, cell: float) -> np.ndarray:
         return sparse_height_above_ground(points, keys, cols, cell)
     cells = keys[:, 0] * cols + keys[:, 1]
     lowest = np.full(rows * cols, np.inf)
-    np.minimum.at(lowest, cells, points[:, 2])
+    np.minimum.at(lowest, cells, np.asarray(points[:, 2], np.float64))  # same dtype: ufunc.at's fast path
     grid = lowest.reshape(rows, cols)
     neighbour_lowest = np.full_like(grid, np.inf)
     for dx in (-1, 0, 1):
@@ -52,7 +52,7 @@ def sparse_height_above_ground(points: np.ndarray, keys: np.ndarray, cols: int, 
     cells = keys[:, 0] * cols + keys[:, 1]
     unique, inverse = np.unique(cells, return_inverse=True)
     lowest = np.full(unique.shape[0], np.inf, dtype=np.float64)
-    np.minimum.at(lowest, inverse, points[:, 2])
+    np.minimum.at(lowest, inverse, np.asarray(points[:, 2], np.float64))
     neighbour_lowest = np.full_like(lowest, np.inf)
     for dx in (-1, 0, 1):
         for dy in (-1, 0, 1):
@@ -78,7 +78,7 @@ def zone_ground(points: np.ndarray, cell: float = 2.0, sectors: int = 64, bandwi
     bins = int(distance.max() // size) + 1
     radial = np.minimum((distance // size).astype(np.int64), bins - 1)
     lowest = np.full(sectors * bins, np.inf)
-    np.minimum.at(lowest, sector * bins + radial, points[:, 2])
+    np.minimum.at(lowest, sector * bins + radial, np.asarray(points[:, 2], np.float64))
     lowest = lowest.reshape(sectors, bins)
     seen = np.isfinite(lowest)
     heights = np.where(seen, lowest, 0.0)

@@ -31,10 +31,11 @@ def label_means(values: np.ndarray, labels: np.ndarray, count: int, weights: np.
 def label_extents(points: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
     """Per label, the larger side (m) of its horizontal axis-aligned bounding box; zero for empty labels."""
     sides = np.zeros(count)
-    for axis in (0, 1):  # one axis at a time: ufunc.at is ten times faster on 1-D values
+    for axis in (0, 1):  # one axis at a time, as float64: ufunc.at is 30x slower on 2-D or cast values
+        values = np.asarray(points[:, axis], dtype=np.float64)
         low, high = np.full(count, np.inf), np.full(count, -np.inf)
-        np.minimum.at(low, labels, points[:, axis])
-        np.maximum.at(high, labels, points[:, axis])
+        np.minimum.at(low, labels, values)
+        np.maximum.at(high, labels, values)
         sides = np.maximum(sides, np.where(np.isfinite(low), high - low, 0.0))
     return sides
 
