@@ -168,6 +168,26 @@ def test_a_swerve_between_skipped_scans_is_found_by_the_heading_search(headings,
     assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
 
 
+@pytest.mark.parametrize("yaw_rate, found", [(40.0, True), (1.0, False)])
+def test_a_long_gap_widens_the_heading_search(yaw_rate, found):
+    """Seven scans are skipped and the car turns 25 degrees meanwhile, beyond the gap headings' 20: the search
+    widens with the gap (gap_yaw_rate x 0.7 s) and finds the turn; held to the configured headings it does not."""
+    config = OdomConfig(ssf_range=100.0, gap_yaw_rate=yaw_rate)
+    odometry = make_odometry("ssf", config)
+    world, moving = street(4, moved=False)
+    world = world[~moving]
+    poses = {index: make_pose(1.0 * index) for index in (0, 1, 7, 8)}
+    poses[14] = poses[7] @ make_pose(6.0, 0.0, 0.0, yaw=np.radians(25.0))
+    poses[15] = poses[14] @ make_pose(1.0, 0.0, 0.0)
+    scan = lambda index: transform_points(invert(poses[index]), world)
+    for index in (0, 7, 14):
+        points = scan(index)
+        step = odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points,
+                                       np.zeros(len(points), np.float32)))
+    translation, rotation = pose_error(step.pose, poses[14])
+    assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
+
+
 def test_inputs_are_checked():
     odometry = make_odometry("ssf")
     points = np.zeros((10, 3), np.float32)

@@ -15,7 +15,7 @@ from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, rotation_angle, transform_points, yaw_matrix
 from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
-                                             point_to_plane)
+                                             point_to_plane, steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap, above_ground
 
 GAP_NOISE = np.diag([0.05, 0.05, 0.05, 0.005, 0.005, 0.005]) ** 2  # per predicted-only scan (m, rad)^2
@@ -50,6 +50,8 @@ class OdomConfig(Section):
                                             "extrapolated, and a swerve leaves its heading degrees off: these heading "
                                             "offsets (deg, each way) are tried too, and the start that matches most "
                                             "points is refined")
+    gap_yaw_rate: float = Field(40.0, gt=0.0, description="the heading search reaches at least this yaw rate (deg/s) "
+                                "over the gap: the offsets above are widened in proportion for longer gaps")
     prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
                                             "the constant-velocity prediction is checked: a search from that "
                                             "prediction runs too, and the map keeps whichever fits more points")
@@ -266,32 +268,43 @@ class Odometry:
         if len(self.map) == 0:
             return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
+        gap = periods >= 1.5
         if by_flow is not None:
             gates = self.config.refine_gates
-            if periods >= 1.5:  # scans were skipped: the flow's extrapolated motion is a search start, heading open
-                by_flow, gates = self.best_heading(points, weights, target, by_flow), self.config.search_gates
+            if gap:  # scans were skipped: the flow's extrapolated motion is a search start, heading open
+                by_flow, gates = self.best_heading(points, weights, target, by_flow, periods), self.config.search_gates
             from_flow = point_to_plane(points, weights, target, by_flow, gates, self.config.kernel)
             if self.steps < 2 or self.agree(by_flow, by_velocity, periods):
                 return from_flow, "flow"
         searched = point_to_plane(points, weights, target, by_velocity, self.config.search_gates, self.config.kernel)
-        if by_flow is None or searched.inliers <= from_flow.inliers:
+        if by_flow is not None and gap:  # across a gap, the ground fits a wrong heading as well: steep surfaces judge
+            if steep_support(points, searched.transform, target) <= steep_support(points, from_flow.transform, target):
+                return from_flow, "flow"
+        elif by_flow is None or searched.inliers <= from_flow.inliers:
             return (searched, "velocity") if by_flow is None else (from_flow, "flow")
         self.rejected_flows += 1
         return searched, "velocity"
 
-    def best_heading(self, points: np.ndarray, weights: np.ndarray | None, target, start: np.ndarray) -> np.ndarray:
-        """Of `start` turned by each of the gap headings (and not), the one whose first search iterations match the
-        most points (a swerve of 13 degrees in 0.3 s left the extrapolated flow 4 degrees off: metres at range, out of
-        the refinement's reach)."""
+    def best_heading(self, points: np.ndarray, weights: np.ndarray | None, target, start: np.ndarray,
+                     periods: float = 1.0) -> np.ndarray:
+        """Of `start` turned by each of the gap headings (and not; widened to reach gap_yaw_rate over `periods` scan
+        periods), the one whose first search iterations lay most points on steep surfaces (a swerve of 13 degrees in
+        0.3 s left the extrapolated flow 4 degrees off: metres at range, out of the refinement's reach; the ground
+        matches every heading)."""
         best, most = start, -1
         stride = max(1, len(points) // HEADING_TRIAL_POINTS)  # a few hundred points tell the headings apart
         points, weights = points[::stride], None if weights is None else weights[::stride]
-        for offset in (0.0, *self.config.gap_headings, *(-np.asarray(self.config.gap_headings))):
+        headings = np.asarray(self.config.gap_headings, dtype=np.float64)
+        if headings.size:
+            reach = self.config.gap_yaw_rate * periods * self.config.scan_period
+            headings = headings * max(1.0, reach / headings.max())
+        for offset in (0.0, *headings, *(-headings)):
             turned = start.copy()
             turned[:3, :3] = yaw_matrix(np.radians(offset))[:3, :3] @ start[:3, :3]
             found = point_to_plane(points, weights, target, turned, self.config.search_gates[:3], self.config.kernel)
-            if found.inliers > most:
-                best, most = found.transform, found.inliers
+            support = steep_support(points, found.transform, target)
+            if support > most:
+                best, most = found.transform, support
         return best
 
     def chain(self, stamp_ns: int, alignment: Alignment) -> None:

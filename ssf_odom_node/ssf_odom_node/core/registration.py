@@ -111,6 +111,20 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
     return Alignment(transform, plane_covariance(hessian, rmse, inliers), inliers, rmse, done)
 
 
+def steep_support(points: np.ndarray, transform: np.ndarray, target: PlaneTarget, gate: float = 0.5,
+                  tight: float = 0.2) -> int:
+    """How many points the transform lays within `tight` (m) of a steep target surface (normal within 45 degrees of
+    horizontal: walls, poles, cars): what tells headings apart, where the ground fits every heading alike."""
+    if len(target) == 0 or len(points) == 0:
+        return 0
+    moved = np.asarray(points, dtype=np.float64) @ transform[:3, :3].T + transform[:3, 3]
+    distance, index = target.tree.query(moved, distance_upper_bound=gate)
+    found = np.isfinite(distance)
+    normals = target.normals[index[found]]
+    residual = np.abs(np.einsum("ij,ij->i", moved[found] - target.points[index[found]], normals))
+    return int(np.count_nonzero((residual < tight) & (np.abs(normals[:, 2]) < np.sqrt(0.5))))
+
+
 def constrained_step(hessian: np.ndarray, gradient: np.ndarray, length: float) -> np.ndarray:
     """The Gauss-Newton step -H^-1 g in the directions the residuals constrain; none along degenerate directions
     (a corridor's length, a plane's in-plane motion), so the prediction stands there. Rotations are measured as
