@@ -55,10 +55,6 @@ class RigidConfig(Section):
     surface_noise: float = Field(2.0, ge=0.0, description="a cluster standing still must miss the surfaces of scan t+1 by "
                                  "more than this many times the scene's median miss, and its surfaces' own roughness, "
                                  "before its motion counts")
-    agreeing_share: float = Field(0.5, ge=0.0, le=1.0, description="a motion that takes more than this share of a "
-                                  "cluster's points from beyond its noise floor off the surfaces of scan t+1 to within it "
-                                  "needs no small-sample margin on its mean miss standing still: the points back it one "
-                                  "by one (slow walkers of 20-40 points; 1: never)")
     inlier_gate: float = Field(0.3, gt=0.0, description="a point is explained by scan t+1 within this distance (m)")
     min_explained_gain: float = Field(0.25, ge=0.0, le=1.0, description="or: share of a cluster's points a motion must "
                                       "newly explain")
@@ -455,45 +451,25 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     floor = floors[clusters.parent]
     counted = np.maximum(label_counts(labels, count), 1)
-    agreeing = agreeing_share(source + height, moved, labels, tree, clusters.labels2, allowed, config, count,
-                              normals2, points2, floor)
-    moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config,
-                                                            agreeing)
+    moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
     if sensed is not None and moving.any():  # standing still once more, as the moved sensor samples it again
         check = moving[labels]
         resampled = static_fit(source[check] + height[check], sensed[members][check] + height[check], labels[check],
                                tree, clusters.labels2, allowed[check], config, count, normals2, points2,
                                floors[allowed][check])
         fit_static = Fit(*(np.where(moving, again, first) for again, first in zip(resampled, fit_static)))
-        moving &= explains(fit_moving, fit_static, believed, floor, counted, config, agreeing)
+        moving &= explains(fit_moving, fit_static, believed, floor, counted, config)
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving)
 
 
-def agreeing_share(still: np.ndarray, moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
-                   allowed: np.ndarray, config: RigidConfig, count: int, normals2: np.ndarray | None,
-                   points2: np.ndarray, floor: np.ndarray) -> np.ndarray:
-    """Per cluster, the share of its points that back a motion one by one: standing still (`still`) they miss the
-    surfaces of scan t+1 by more than the cluster's noise floor (`floor`, m; nothing near counts as a miss), moved
-    (`moved`) they lie within it."""
-    miss_still = np.nan_to_num(surface_distance(still, tree, points2, normals2, config.residual_cap, allowed,
-                                                labels2)[1], nan=np.inf)
-    miss_moved = np.nan_to_num(surface_distance(moved, tree, points2, normals2, config.residual_cap, allowed,
-                                                labels2)[1], nan=np.inf)
-    backs = (miss_still > floor[labels]) & (miss_moved <= floor[labels])
-    return label_means(backs.astype(np.float64), labels, count)
-
-
 def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.ndarray, counted: np.ndarray,
-             config: RigidConfig, agreeing: np.ndarray | None = None) -> np.ndarray:
+             config: RigidConfig) -> np.ndarray:
     """Per cluster, whether its motion explains scan t+1 better than standing still (`floor`: its noise floor, m;
-    `counted`: its points in the fits; `believed`: the mask calls it dynamic; `agreeing`: the share of its points that
-    back the motion one by one, None: not known)."""
+    `counted`: its points in the fits; `believed`: the mask calls it dynamic)."""
     keep = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_gain)
     keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
     margin = np.where(believed, 1.0, 1.0 + np.sqrt(config.min_cluster_points / counted))  # few points: wider margin
-    if agreeing is not None:  # most points back the motion one by one: the evidence the margin stands in for
-        margin = np.where(agreeing > config.agreeing_share, 1.0, margin)
     misfit = fit_static.plane > floor * margin  # unless the mask already calls the cluster dynamic
     no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
                 & (fit_moving.unexplained <= config.max_unexplained))
