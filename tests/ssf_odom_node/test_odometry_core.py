@@ -10,7 +10,7 @@ from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, transform_points
 from ssf_common.scans import read_scan
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, make_odometry
-from ssf_odom_node.core.registration import estimate_normals, flow_transform
+from ssf_odom_node.core.registration import PlaneTarget, estimate_normals, flow_transform, steep_support
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap
 
 CONVOY_STEP = 1.0  # m per scan, along x (world)
@@ -186,6 +186,19 @@ def test_a_long_gap_widens_the_heading_search(yaw_rate, found):
                                        np.zeros(len(points), np.float32)))
     translation, rotation = pose_error(step.pose, poses[14])
     assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
+
+
+def test_steep_support_counts_walls_not_the_ground():
+    """Turned about the vertical, the ground still fits and the wall does not: only the wall's points count, and only
+    where they lie on it."""
+    world, moving = street(5, moved=False)
+    world = world[~moving]
+    target = PlaneTarget.build(world, estimate_normals(world, 8))
+    ground, wall = world[:3000], world[3000:4500]  # the street's ground, then its long wall
+    assert steep_support(ground, np.eye(4), target) < 0.05 * len(ground)  # the few by the walls' feet
+    assert steep_support(wall, np.eye(4), target) > 0.9 * len(wall)
+    turned = make_pose(0.0, 0.0, 0.0, yaw=np.radians(10.0))
+    assert steep_support(wall, turned, target) < 0.3 * len(wall)
 
 
 def test_inputs_are_checked():
