@@ -89,7 +89,7 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
     assert set(methods) == {"points", "ssf", "kiss-icp"}
     for figures in methods.values():
         assert {"rmse", "sse", "std"} <= set(figures["rpe_translation"]) and figures["ate"]["rmse"] >= 0
-        assert 0.0 <= figures["trail_share"] <= 1.0
+        assert 0.0 <= figures["left_behind_share"] <= figures["trail_share"] <= 1.0
     assert methods["ssf"]["rpe_translation"]["rmse"] < 0.05
     assert document["config"]["odom"]["method"] == "ssf" and (tmp_path / "odom.config.yaml").is_file()
     assert (tmp_path / "traj.png").stat().st_size > 0 and (tmp_path / "maps.png").stat().st_size > 0

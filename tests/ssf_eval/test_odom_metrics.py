@@ -8,7 +8,7 @@ import pytest
 
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle
 from ssf_eval.odom.metrics import kitti_drift, score
-from ssf_eval.odom.trails import SweptPaths
+from ssf_eval.odom.trails import SweptPaths, left_behind, standing_now
 from ssf_common.records import Obstacles
 
 
@@ -63,3 +63,27 @@ def test_swept_paths_mark_points_inside_agents_above_the_ground():
     paths.add(car.transformed(make_pose(2.0), "world"))  # it drove 2 m
     points = np.array([[11.0, 0.5, 1.0], [13.5, -0.5, 1.2], [10.0, 0.0, 0.05], [10.0, 3.0, 1.0], [10.0, 0.0, 2.5]])
     np.testing.assert_array_equal(paths.on_paths(points), [True, True, False, False, False])
+
+
+def test_left_behind_counts_only_paths_where_no_agent_stands_now():
+    paths = SweptPaths()
+    car = Obstacles(0, "world", ids=[1], kinds=[1], centres=[[10.0, 0.0, 0.8]], sizes=[[4.0, 2.0, 1.6]], yaws=[0.0],
+                    velocities=[[5.0, 0.0, 0.0]])
+    queued = Obstacles(0, "world", ids=[2], kinds=[1], centres=[[30.0, 0.0, 0.8]], sizes=[[4.0, 2.0, 1.6]],
+                       yaws=[0.0], velocities=[[0.0, 0.0, 0.0]])
+    moved = car.transformed(make_pose(6.0), "world")  # the car drove 6 m on: its first place is empty now
+    paths.add(car)
+    paths.add(queued)
+    paths.add(moved)
+    now = Obstacles(0, "world", ids=[1, 2], kinds=[1, 1], centres=[moved.centres[0], queued.centres[0]],
+                    sizes=[[4.0, 2.0, 1.6]] * 2, yaws=[0.0, 0.0], velocities=[[5.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    points = np.array([[9.0, 0.5, 1.0],  # where the car was: a trail
+                       [16.0, 0.0, 1.0],  # where the car is now
+                       [30.5, 0.3, 1.2],  # the queued car, standing there all along
+                       [20.0, 5.0, 1.0]])  # nobody's path
+    on, left = left_behind(points, paths, now)
+    np.testing.assert_array_equal(on, [True, True, True, False])
+    np.testing.assert_array_equal(left, [True, False, False, False])
+    np.testing.assert_array_equal(standing_now(points, now), [False, True, True, False])
+    on, left = left_behind(points, paths, Obstacles.empty())  # nobody there now: every path voxel is left behind
+    np.testing.assert_array_equal(left, on)

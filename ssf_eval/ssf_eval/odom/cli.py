@@ -113,7 +113,8 @@ def perception_for(masks: str, seed: int):
 def format_table(results: dict) -> str:
     """The paper's layout: RPE translation and rotation (RMSE / SSE / STD), then ATE, drift, trails and time."""
     header = (f"{'scenario':<12} {'method':<9} {'RPE t RMSE':>10} {'SSE':>8} {'STD':>7} {'RPE r RMSE':>10} {'SSE':>8} "
-              f"{'STD':>7} {'ATE':>7} {'drift %':>7} {'deg/100m':>8} {'end %':>6} {'trails %':>8} {'ms':>6}")
+              f"{'STD':>7} {'ATE':>7} {'drift %':>7} {'deg/100m':>8} {'end %':>6} {'trails %':>8} {'left %':>6} "
+              f"{'ms':>6}")
     lines = [header, "-" * len(header)]
     import numpy as np
 
@@ -125,7 +126,7 @@ def format_table(results: dict) -> str:
                 f"{s.rpe_translation.std:7.4f} {s.rpe_rotation.rmse:10.4f} {s.rpe_rotation.sse:8.4f} "
                 f"{s.rpe_rotation.std:7.4f} {s.ate.rmse:7.3f} {s.drift.translation_pct:7.2f} "
                 f"{s.drift.rotation_deg_per_100m:8.3f} {s.endpoint_pct:6.2f} {100 * run.trail_share:8.2f} "
-                f"{float(np.median(run.ms)):6.1f}")
+                f"{100 * run.left_share:6.2f} {float(np.median(run.ms)):6.1f}")
     return "\n".join(lines)
 
 
@@ -191,7 +192,8 @@ def run_eval(args: argparse.Namespace) -> int:
         results[title] = run_sequence(scans, args.methods, perception, config, config.map.voxel, args.trail_every,
                                       progress)
     print(f"odometry over {args.frames} scans after {args.warmup:g} s, seed {args.seed}, masks {args.masks} "
-          "(RPE between consecutive scans: translation m, rotation deg; ATE m; trails: share of map voxels)")
+          "(RPE between consecutive scans: translation m, rotation deg; ATE m; trails: share of map voxels on agents' "
+          "paths; left: of those, where no agent stands at that moment)")
     print(format_table(results))
     if args.json:
         payload = {"seed": args.seed, "frames": args.frames, "warmup_s": args.warmup, "masks": args.masks,
@@ -202,6 +204,7 @@ def run_eval(args: argparse.Namespace) -> int:
                                           "rpe_rotation_deg": s.rpe_rotation._asdict(), "ate": s.ate._asdict(),
                                           "drift": s.drift._asdict(), "endpoint_pct": s.endpoint_pct,
                                           "trail_share": result.runs[name].trail_share,
+                                          "left_behind_share": result.runs[name].left_share,
                                           "map_voxels_sampled": result.runs[name].map_voxels,
                                           "ms_median": float(np.median(result.runs[name].ms)),
                                           "ms_p95": float(np.percentile(result.runs[name].ms, 95))}

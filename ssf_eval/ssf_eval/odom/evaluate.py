@@ -16,7 +16,8 @@ from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, transform_points
 from ssf_eval.odom.metrics import OdomScores, score
 from ssf_eval.odom.sequence import SimScan
-from ssf_eval.odom.trails import SweptPaths
+from ssf_common.records import Obstacles
+from ssf_eval.odom.trails import SweptPaths, left_behind
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 KISS_ICP = "kiss-icp"
@@ -105,7 +106,8 @@ class MethodRun:
     name: str
     poses: list[np.ndarray] = field(default_factory=list)
     ms: list[float] = field(default_factory=list)
-    trail_voxels: int = 0
+    trail_voxels: int = 0  # map voxels on agents' paths (agents standing there now included)
+    left_voxels: int = 0  # of those, the voxels where no agent stands at the sample's moment (left behind)
     map_voxels: int = 0
     last_map: np.ndarray | None = None  # (V, 3) world frame, at the last trail sample
     last_trails: np.ndarray | None = None  # (V,) bool
@@ -114,6 +116,11 @@ class MethodRun:
     def trail_share(self) -> float:
         """Share of map voxels on agents' paths, pooled over the samples."""
         return self.trail_voxels / self.map_voxels if self.map_voxels else float("nan")
+
+    @property
+    def left_share(self) -> float:
+        """Share of map voxels on agents' paths where no agent stands at the sample's moment, pooled."""
+        return self.left_voxels / self.map_voxels if self.map_voxels else float("nan")
 
 
 @dataclass
@@ -168,21 +175,23 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
         if count % trail_every == 0:
             for name, run in result.runs.items():
                 odom_map = kiss.map_points() if name == KISS_ICP else odometries[name].map.points
-                sample_trails(run, odom_map, scan.pose @ invert(run.poses[-1]), paths, map_voxel)
+                sample_trails(run, odom_map, scan.pose @ invert(run.poses[-1]), paths, map_voxel, scan.agents)
         if progress is not None:
             progress(count)
     return result.finish()
 
 
 def sample_trails(run: MethodRun, odom_map: np.ndarray, world_from_odom: np.ndarray, paths: SweptPaths,
-                  voxel: float) -> None:
-    """Count a map's voxels and those on agents' paths (the map put into the world at the current true pose)."""
+                  voxel: float, agents: Obstacles | None = None) -> None:
+    """Count a map's voxels, those on agents' paths and those of them where none of `agents` (this moment) stands
+    (the map put into the world at the current true pose)."""
     points = np.asarray(odom_map, dtype=np.float64)
     if len(points) == 0:
         return
     points = points[voxel_indices(points, voxel)]
     world = transform_points(world_from_odom, points)
-    trails = paths.on_paths(world)
+    trails, left = left_behind(world, paths, agents if agents is not None else Obstacles.empty())
     run.trail_voxels += int(trails.sum())
+    run.left_voxels += int(left.sum())
     run.map_voxels += len(world)
     run.last_map, run.last_trails = world, trails

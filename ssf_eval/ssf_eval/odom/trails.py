@@ -1,5 +1,9 @@
 """Map trails: the share of a map's voxels that lie where moving agents have been (their footprints, above the
-ground, up to their height). A static map built from static points only should have almost none."""
+ground, up to their height). A static map built from static points only should have almost none.
+
+Two figures: `on_paths` counts every map voxel in a swept footprint, including those where an agent stands at the
+moment the map is sampled (a queue of cars standing still is in the map as it is in the world); `left_behind`
+counts only those where no agent stands at that moment: voxels an agent has left, the true trails of motion."""
 
 from __future__ import annotations
 
@@ -57,3 +61,20 @@ class SweptPaths:
         inside = self.codes[where] == codes
         z = np.asarray(points)[:, 2]
         return inside & (z > self.base[where] + GROUND_CLEARANCE) & (z <= self.top[where] + 0.1)
+
+
+def standing_now(points: np.ndarray, agents: Obstacles) -> np.ndarray:
+    """(N,) bool: world points inside the footprint of an agent where it stands now (`agents`: one moment), above
+    the ground under it and below its top, on the same grid as `SweptPaths`."""
+    now = SweptPaths()
+    now.add(agents)
+    return now.on_paths(points)
+
+
+def left_behind(points: np.ndarray, paths: SweptPaths, agents: Obstacles) -> tuple[np.ndarray, np.ndarray]:
+    """Map voxels (world points) on agents' paths, and those of them where no agent stands now: (N,) bool each."""
+    on = paths.on_paths(points)
+    left = on.copy()
+    if on.any():
+        left[on] = ~standing_now(np.asarray(points)[on], agents)
+    return on, left
