@@ -48,8 +48,8 @@ class OdomConfig(Section):
                                             description="gates of each iteration from a constant-velocity start (points method, gaps)")
     gap_headings: tuple[float, ...] = Field((3.0, 6.0, 9.0, 12.0, 16.0, 20.0), description="across skipped scans the flow's motion is "
                                             "extrapolated, and a swerve leaves its heading degrees off: these heading "
-                                            "offsets (deg, each way) are tried too, and the start that matches most "
-                                            "points is refined")
+                                            "offsets (deg, each way) are tried too, and the start that lays most "
+                                            "points on steep surfaces is refined")
     gap_yaw_rate: float = Field(40.0, gt=0.0, description="the heading search reaches at least this yaw rate (deg/s) "
                                 "over the gap: the offsets above are widened in proportion for longer gaps")
     prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
@@ -264,7 +264,7 @@ class Odometry:
                by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
         """Point-to-plane Gauss-Newton of the registered points against the map: a few iterations from the flow's
         prediction; where it contradicts constant velocity (or there is no flow), a search from constant velocity
-        too, and the result that matches more points wins."""
+        too, and the result that matches more points wins (across a gap: lays more points on steep surfaces)."""
         if len(self.map) == 0:
             return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
