@@ -70,6 +70,8 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, dr
                 "driver": "none" if driver == "planner" else "follow",
             }
             node = node.model_copy(update={"parameters": parameters})
+        if node.executable == "ssf_odom_node" and driver != "planner":  # the planner's commands do not drive the car
+            node = node.model_copy(update={"parameters": {**node.parameters, "command_topic": ""}})
         nodes.append(node)
     return graph.model_copy(update={"nodes": nodes})
 

@@ -1,9 +1,12 @@
-"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) in; /odom, the
-odom -> base_link transform on /tf, /ssf/path and the static map on /ssf/map out."""
+"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) in, and /cmd_vel as
+the motion prior across skipped scans; /odom, the odom -> base_link transform on /tf, /ssf/path and the static map on
+/ssf/map out."""
 
 from __future__ import annotations
 
 import collections
+import dataclasses
+import threading
 import time
 from typing import Any
 
@@ -16,6 +19,7 @@ from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg, scene_flow_from_cloud,
                                     semantic_flow_from_cloud)
 from ssf_common.errors import ConfigError, MessageError, SsfError
+from ssf_common.geometry.kinematics import commanded_motion, forward_speed
 from ssf_common.geometry.se3 import invert
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
@@ -25,6 +29,7 @@ from ssf_common.worker import LatestWorker
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_odometry
 
 PENDING_FLOWS = 8  # flows kept while their mask is on the way (input: flow_mask)
+COMMANDS_KEPT = 600  # velocity commands kept for the motion prior: a minute at 10 Hz, far longer than any gap
 
 
 class OdomNodeConfig(Section):
@@ -36,6 +41,12 @@ class OdomNodeConfig(Section):
     mount: tuple[float, float, float, float, float, float] = Field(
         (0.0, 0.0, 1.8, 0.0, 0.0, 0.0), description="base_link -> sensor: x y z roll pitch yaw (m, rad), until /tf says")
     mount_from_tf: bool = Field(True, description="take base_link -> sensor from /tf when it is published there")
+    command_topic: str = Field(topics.CMD_VEL, description="velocity commands (geometry_msgs/Twist) the vehicle "
+                               "obeys: across skipped scans, the motion they drove is the odometry's prior (see "
+                               "command_yaw_rate); empty: no prior (a vehicle driven by something else)")
+    max_accel: float = Field(3.0, gt=0.0, description="the vehicle follows the commanded speed within this "
+                             "acceleration (m/s^2) ...")
+    max_decel: float = Field(6.0, gt=0.0, description="... and this deceleration (m/s^2, positive)")
     map_period_s: float = Field(1.0, gt=0.0, description="how often /ssf/map is published (s)")
     path_length: int = Field(5000, ge=1, description="poses kept on /ssf/path")
     report_period_s: float = Field(5.0, gt=0.0)
@@ -75,6 +86,9 @@ class OdomNode(Node):
         self.sensor_frame = ""
         self.path: collections.deque[Any] = collections.deque(maxlen=self.wiring.path_length)
         self.flows: collections.OrderedDict[int, Any] = collections.OrderedDict()
+        self.commands: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=COMMANDS_KEPT)
+        self.commands_lock = threading.Lock()  # the worker reads what the subscription appends
+        self.speed = 0.0  # base_link's forward speed at the last scan (m/s): where the motion prior starts from
         self.odom_pub = self.create_publisher("nav_msgs/msg/Odometry", topics.ODOM, QOS_DEFAULT)
         self.tf_pub = self.create_publisher("tf2_msgs/msg/TFMessage", topics.TF, QOS_DEFAULT)
         self.path_pub = self.create_publisher("nav_msgs/msg/Path", topics.PATH, QOS_DEFAULT)
@@ -90,6 +104,8 @@ class OdomNode(Node):
         self.get_logger().info(f"method '{self.config.method.value}' from {self.wiring.input}")
         if self.wiring.mount_from_tf:
             self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
+        if self.wiring.command_topic:
+            self.create_subscription("geometry_msgs/msg/Twist", self.wiring.command_topic, self.on_command, QOS_DEFAULT)
         if self.wiring.input == "semantic_flow":  # inputs last: the node is whole once they are matched
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, self.on_semantic_flow, QOS_DEFAULT)
         else:
@@ -133,6 +149,28 @@ class OdomNode(Node):
         self.sensor_frame = flow.frame_id
         self.worker.submit("scan", OdomInput(flow.stamp_ns, flow.points, flow.flow, mask.dynamic_prob))
 
+    def on_command(self, msg: Any) -> None:
+        """Remember a velocity command with the time it arrived (a Twist has no stamp)."""
+        linear, angular = float(msg.linear.x), float(msg.angular.z)
+        if not (np.isfinite(linear) and np.isfinite(angular)):
+            self.get_logger().warning(f"dropped a command on {self.wiring.command_topic} that is not finite")
+            return
+        now = self.get_clock().now_ns()
+        with self.commands_lock:
+            if self.commands and now < self.commands[-1][0]:  # the clock jumped back: a restarted stream
+                self.commands.clear()
+            self.commands.append((now, linear, angular))
+
+    def motion_prior(self, stamp_ns: int) -> np.ndarray | None:
+        """The sensor's motion from the last scan to this one (last scan's sensor frame <- this one's) as the
+        commands sent in between drove the vehicle; None before the first scan or without commands."""
+        if self._last_stamp is None:
+            return None
+        with self.commands_lock:
+            commands = list(self.commands)
+        return commanded_motion(commands, self._last_stamp, stamp_ns, self.speed, self.wiring.max_accel,
+                                self.wiring.max_decel, self.mount)
+
     def on_tf(self, msg: Any) -> None:
         """Take the base_link -> sensor mount when /tf carries it."""
         for item in msg.transforms:
@@ -150,11 +188,13 @@ class OdomNode(Node):
                 self.get_logger().warning(f"stamp {frame.stamp_ns} is older than the last scan's; dropped")
             return
         started = time.perf_counter()
-        step = self.odometry.step(frame)
+        step = self.odometry.step(dataclasses.replace(frame, motion_prior=self.motion_prior(frame.stamp_ns)))
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stats.record(self._compute_ms[-1], "steps")
         self._last_stamp = frame.stamp_ns
         estimate = to_base(step, self.mount, self.wiring.odom_frame, self.wiring.base_frame)
+        self.speed = float(estimate.twist[0]) if step.next_motion is None else forward_speed(
+            invert(step.next_motion), self.config.scan_period, self.mount)  # the flow's: the speed at the scan itself
         self.odom_pub.publish(odometry_to_msg(estimate))
         self.tf_pub.publish(odometry_transform_msg(estimate))
         self.path.append(messages.msg_type("geometry_msgs/msg/PoseStamped")(

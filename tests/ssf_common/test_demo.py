@@ -128,3 +128,11 @@ def test_demo_says_which_part_died_and_exits_one(tmp_path, capsys, monkeypatch):
     assert lines[3] == f"demo: the simulator wrote no episode summary to {tmp_path / 'out' / 'episode.json'}"
     assert lines[4].startswith(f"demo: the recording cannot be read: {tmp_path / 'out' / 'recording'}")
     assert lines[5] == f"demo: failed; what is in {tmp_path / 'out'} is incomplete"
+
+
+@pytest.mark.parametrize("driver, command_topic", [("planner", "/cmd_vel"), ("follow", "")])
+def test_the_odometry_takes_the_commands_as_its_prior_only_when_they_drive(tmp_path, driver, command_topic):
+    """With the built-in follower driving, the planner's /cmd_vel does not move the car: the odometry ignores it."""
+    graph = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1, driver=driver)
+    odometry = next(node for node in graph.nodes if node.executable == "ssf_odom_node")
+    assert odometry.parameters.get("command_topic", "/cmd_vel") == command_topic

@@ -10,6 +10,7 @@ from ssf_common.geometry.boxes import bounding_box, box_corners, min_area_rectan
 from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, voxel_components
 from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
 from ssf_common.geometry.ground import ground_mask, height_above_ground
+from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed
 from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import Sampling, farthest_point_indices, greedy_farthest_indices, sample_indices, voxel_indices
@@ -248,3 +249,21 @@ def test_zone_ground_passes_under_a_car_whose_cells_hold_no_ground_return(start)
     assert (zoned[lowest_ring] > 0.3).all() and not ground_mask(points, zones=True)[on_car].any()
     assert np.abs(zoned[~on_car]).max() < 0.1  # the sloped ground stays ground
     np.testing.assert_array_equal(height_above_ground(points[:0], zones=True), np.zeros(0))
+
+
+def test_commands_drive_the_vehicle_within_its_acceleration_limits():
+    """Each command holds until the next; the speed follows it within the limits; the motion is the arc driven."""
+    second = 1_000_000_000
+    cruising = driven(PlanarState(0.0, 0.0, 0.0, 5.0), [(0, 5.0, 0.0)], second, 2 * second, 3.0, 6.0)
+    assert cruising == pytest.approx((5.0, 0.0, 0.0, 5.0))
+    braking = driven(PlanarState(0.0, 0.0, 0.0, 5.0), [(0, 5.0, 0.0), (second, 0.0, 0.0)], 0, 3 * second, 3.0, 6.0)
+    assert braking.speed == 0.0 and braking.x == pytest.approx(5.0 + 5.0 ** 2 / 12.0, abs=0.05)  # 1 s, then 6 m/s^2
+    motion = commanded_motion([(0, 4.0, 0.5)], 0, 2 * second, 4.0, 3.0, 6.0)
+    assert np.arctan2(motion[1, 0], motion[0, 0]) == pytest.approx(1.0)
+    assert motion[:2, 3] == pytest.approx([8.0 * np.sin(1.0), 8.0 * (1 - np.cos(1.0))], abs=0.01)  # radius 8 m
+    mount = make_pose(1.5, 0.0, 1.8)
+    mounted = commanded_motion([(0, 4.0, 0.5)], 0, 2 * second, 4.0, 3.0, 6.0, mount)
+    assert mount @ mounted @ invert(mount) == pytest.approx(motion)
+    assert commanded_motion([(second, 4.0, 0.0)], 0, 2 * second, 4.0, 3.0, 6.0) is None  # nothing in force at the start
+    assert forward_speed(motion, 2.0) == pytest.approx(8.0 * np.sin(1.0) / 2.0, abs=0.005)
+    assert forward_speed(mounted, 2.0, mount) == pytest.approx(forward_speed(motion, 2.0))

@@ -1,5 +1,5 @@
 """Odometry core: weighted Kabsch with outliers, the three variants on a static street with a moving convoy, the
-static map's memory cap, the covariance, gaps, and known motions of real VLP-16/VLP-32 scans."""
+static map's memory cap, the covariance, gaps (with and without a motion prior), and known motions of real VLP-16/VLP-32 scans."""
 
 from __future__ import annotations
 
@@ -172,7 +172,13 @@ def test_a_swerve_between_skipped_scans_is_found_by_the_heading_search(headings,
 def test_a_long_gap_widens_the_heading_search(yaw_rate, found):
     """Seven scans are skipped and the car turns 25 degrees meanwhile, beyond the gap headings' 20: the search
     widens with the gap (gap_yaw_rate x 0.7 s) and finds the turn; held to the configured headings it does not."""
-    config = OdomConfig(ssf_range=100.0, gap_yaw_rate=yaw_rate)
+    translation, rotation, _ = turn_across_a_long_gap(OdomConfig(ssf_range=100.0, gap_yaw_rate=yaw_rate), None)
+    assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
+
+
+def turn_across_a_long_gap(config: OdomConfig, prior_yaw: float | None) -> tuple[float, float, str]:
+    """The 25 degree turn over seven skipped scans, the last scan with the true motion turned by `prior_yaw`
+    degrees as its prior (None: no prior): translation and rotation error at that scan, and what predicted it."""
     odometry = make_odometry("ssf", config)
     world, moving = street(4, moved=False)
     world = world[~moving]
@@ -182,10 +188,37 @@ def test_a_long_gap_widens_the_heading_search(yaw_rate, found):
     scan = lambda index: transform_points(invert(poses[index]), world)
     for index in (0, 7, 14):
         points = scan(index)
+        prior = None
+        if index == 14 and prior_yaw is not None:
+            prior = make_pose(0.0, 0.0, 0.0, yaw=np.radians(prior_yaw)) @ invert(poses[7]) @ poses[14]
         step = odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points,
-                                       np.zeros(len(points), np.float32)))
-    translation, rotation = pose_error(step.pose, poses[14])
+                                       np.zeros(len(points), np.float32), prior))
+    return *pose_error(step.pose, poses[14]), step.predicted_by
+
+
+@pytest.mark.parametrize("prior_yaw, found", [(None, False), (0.0, True), (-4.0, True)])
+def test_a_motion_prior_finds_a_turn_the_flow_search_cannot_reach(prior_yaw, found):
+    """Held to the configured headings, the search from the flow's extrapolation misses the 25 degree turn; the motion
+    the commands drove (exact, or 4 degrees off: within the narrow search around it) finds it."""
+    translation, rotation, source = turn_across_a_long_gap(OdomConfig(ssf_range=100.0, gap_yaw_rate=1.0), prior_yaw)
     assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
+    assert source == ("prior" if found else "flow")
+
+
+def test_a_wrong_motion_prior_loses_to_the_flow_search():
+    """A prior 30 degrees off (commands the vehicle did not follow) lays fewer points on the walls than the widened
+    search from the flow, which keeps the turn."""
+    translation, rotation, source = turn_across_a_long_gap(OdomConfig(ssf_range=100.0), 30.0)
+    assert translation < 0.1 and rotation < 0.5, (translation, rotation)
+    assert source == "flow"
+
+
+def test_a_motion_prior_must_be_a_finite_transform():
+    odometry = make_odometry("points")
+    points = np.random.default_rng(0).uniform(-20, 20, (500, 3))
+    odometry.step(OdomInput(0, points))
+    with pytest.raises(DataError, match="motion prior"):
+        odometry.step(OdomInput(100_000_000, points, motion_prior=np.full((4, 4), np.nan)))
 
 
 def test_steep_support_counts_walls_not_the_ground():

@@ -189,10 +189,13 @@ class ClosedLoop:
         timed = spec.latency_s > 0 or spec.answer_every > 1
         self.delay = DelayLine(spec.latency_s, spec.answer_every, self.sim.dt) if timed and not self.follower else None
         mount = invert(self.frame.base_pose) @ self.frame.pose  # base_link <- lidar
-        self.ssf_pose = SsfPose(mount, scans) if spec.pose == "ssf" and scans is not None else None
-        self.pose_errors: list[float] = []  # |estimated - true| ego position (m), with --pose ssf
         # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
         settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
+        self.ssf_pose = None
+        if spec.pose == "ssf" and scans is not None:
+            limits = (settings.vehicle.max_accel, settings.vehicle.max_decel)  # how the ego follows the commands
+            self.ssf_pose = SsfPose(mount, scans, limits=limits)
+        self.pose_errors: list[float] = []  # |estimated - true| ego position (m), with --pose ssf
         self.planner = None if self.follower else RdaPlanner(settings, drive)
         self.sent: list[tuple[int, Command]] = []  # (stamp, command) the planner sent, to carry a late pose forward
         self.solve_ms: list[float] = []
@@ -247,7 +250,7 @@ class ClosedLoop:
         true_pose = self.world_to_odom @ frame.base_pose
         if self.ssf_pose is None:
             return true_pose, self.world_to_odom @ frame.pose, self.world_to_odom, frame.ego.speed
-        lidar_pose = self.ssf_pose.update(frame.stamp_ns, frame.scan.points)
+        lidar_pose = self.ssf_pose.update(frame.stamp_ns, frame.scan.points, self.sent)
         pose = self.ssf_pose.base_pose
         self.pose_errors.append(float(np.linalg.norm(pose[:3, 3] - true_pose[:3, 3])))
         return pose, lidar_pose, lidar_pose @ invert(frame.pose), self.ssf_pose.speed

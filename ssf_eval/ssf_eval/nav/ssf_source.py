@@ -6,11 +6,13 @@ gives it."""
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from ssf_common.config import build
+from ssf_common.geometry.kinematics import commanded_motion, forward_speed
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
 from ssf_eval.nav.perception import ODOM_FRAME, DbscanConfig, Observation, cluster_boxes
@@ -98,29 +100,39 @@ class SsfPerception:
 class SsfPose:
     """The ego pose from SSF odometry: each scan's odometry once the next scan gave it its semantic flow (as the odometry
     node publishes it, one scan late), carried to the newest scan by that flow's motion; scans without an answer (a
-    busy graph's) move it on by the last motion, at constant velocity."""
+    busy graph's) move it on by the last motion, at constant velocity. Like the node, the odometry takes the motion the
+    commands sent drove as its prior across skipped scans."""
 
-    def __init__(self, mount: np.ndarray, scans: ConsecutiveScans, config: OdomConfig | None = None) -> None:
+    def __init__(self, mount: np.ndarray, scans: ConsecutiveScans, config: OdomConfig | None = None,
+                 limits: tuple[float, float] = (3.0, 6.0)) -> None:
         self.mount = mount  # base_link <- lidar
         self.scans = scans
         self.odometry = make_odometry("ssf", config)
+        self.limits = limits  # the vehicle's acceleration and deceleration (m/s^2) for the commands' motion
         self.lidar_pose = mount.copy()  # odom <- lidar of the newest scan; odom is the first scan's base_link
-        self.speed = 0.0  # forward speed (m/s) from the odometry's twist
+        self.speed = 0.0  # forward speed (m/s) at the newest answered scan: its flow's motion ahead (else the twist)
         self.motion = np.eye(4)  # lidar(previous scan) <- lidar(this scan) over the last period
 
-    def update(self, stamp_ns: int, points: np.ndarray) -> np.ndarray:
-        """odom <- lidar at this scan: the previous scan's odometry pose carried forward by its flow."""
+    def update(self, stamp_ns: int, points: np.ndarray, commands: Sequence[tuple[int, Any]] = ()) -> np.ndarray:
+        """odom <- lidar at this scan: the previous scan's odometry pose carried forward by its flow; `commands`
+        (stamp, command with linear and angular) are those sent so far."""
         pair = self.scans.add(stamp_ns, points)
         if pair is None:
             if self.odometry.steps:  # no answer for this scan: on by the last period's motion
                 self.lidar_pose = self.lidar_pose @ self.motion
             return self.lidar_pose
         fusion = pair.seen.fusion
-        step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob))
+        prior = None
+        if self.odometry.stamp_ns is not None:
+            prior = commanded_motion([(stamp, command.linear, command.angular) for stamp, command in commands],
+                                     self.odometry.stamp_ns, pair.stamp_ns, self.speed, *self.limits, self.mount)
+        step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob,
+                                            prior))
         ahead = np.eye(4) if step.next_motion is None else invert(step.next_motion)
         self.motion = ahead
         self.lidar_pose = self.mount @ step.pose @ ahead
-        self.speed = float(step.twist[0])
+        self.speed = float(step.twist[0]) if step.next_motion is None else forward_speed(
+            ahead, self.odometry.config.scan_period, self.mount)
         return self.lidar_pose
 
     @property

@@ -29,6 +29,7 @@ class OdomMethod(str, Enum):
     SSF = "ssf"  # Kabsch on the static points' flow, refinement on static points against a static map
 
 
+GAP_PERIODS = 1.5  # this many scan periods or more since the last scan: scans were skipped
 HEADING_TRIAL_POINTS = 512  # points of a scan each heading hypothesis is tried with
 
 
@@ -52,6 +53,9 @@ class OdomConfig(Section):
                                             "points on steep surfaces is refined")
     gap_yaw_rate: float = Field(40.0, gt=0.0, description="the heading search reaches at least this yaw rate (deg/s) "
                                 "over the gap: the offsets above are widened in proportion for longer gaps")
+    command_yaw_rate: float = Field(10.0, gt=0.0, description="across a gap with a motion prior (the commands sent, "
+                                    "wheel odometry), the prior is searched in heading up to this yaw rate (deg/s) "
+                                    "over the gap and competes with the flow's search, instead of constant velocity")
     prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
                                             "the constant-velocity prediction is checked: a search from that "
                                             "prediction runs too, and the map keeps whichever fits more points")
@@ -71,6 +75,8 @@ class OdomInput:
     points: np.ndarray  # (N, 3)
     flow: np.ndarray | None = None  # (N, 3), None when no flow is known
     dynamic_prob: np.ndarray | None = None  # (N,), None when no segmentation is known
+    motion_prior: np.ndarray | None = None  # (4, 4) last scan's sensor frame <- this scan's, as the commands sent in
+    # between (or wheel odometry) drove the vehicle; None when unknown
 
 
 @dataclass(frozen=True)
@@ -84,7 +90,7 @@ class OdomStep:
     next_motion: np.ndarray | None  # (4, 4) this scan -> the next (scan-t coordinates of static points), from the flow
     inliers: int  # map points matched on the last refinement iteration
     rmse: float  # point-to-plane RMS residual (m)
-    predicted_by: str  # "flow", "velocity" (constant velocity) or "start"
+    predicted_by: str  # "flow", "velocity" (constant velocity), "prior" (the motion prior, across a gap) or "start"
     map_voxels: int
     registered_points: int = 0
     extras: dict = field(default_factory=dict)
@@ -104,7 +110,7 @@ class Odometry:
         self.next_motion: np.ndarray | None = None
         self.stamp_ns: int | None = None
         self.steps = 0
-        self.rejected_flows = 0  # flow motions the constant-velocity prior overruled
+        self.rejected_flows = 0  # flow motions that constant velocity or the motion prior overruled
 
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
@@ -114,7 +120,8 @@ class Odometry:
         # 2. the points this method registers and maps: the static ones (ssf) or all
         registered, weights = self.registered_points(points, dynamic)
         # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ)
-        alignment, source = self.refine(registered, weights, by_flow, by_velocity, self.periods(frame.stamp_ns))
+        alignment, source = self.refine(registered, weights, by_flow, by_velocity, self.periods(frame.stamp_ns),
+                                        self.prior_pose(frame))
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the motion to the next scan from the static points and their flow (weighted Kabsch)
@@ -196,11 +203,21 @@ class Odometry:
         by_velocity = self.pose @ exp_se3(self.velocity * elapsed)
         if self.method is OdomMethod.POINTS or self.next_motion is None:
             return None, by_velocity
-        if elapsed < 1.5 * self.config.scan_period:
+        if elapsed < GAP_PERIODS * self.config.scan_period:
             return self.pose @ invert(self.next_motion), by_velocity
         # scans were skipped: the flow's own motion rate, measured at the last scan, carries on to this one
         per_scan = log_se3(invert(self.next_motion))
         return self.pose @ exp_se3(per_scan * (elapsed / self.config.scan_period)), by_velocity
+
+    def prior_pose(self, frame: OdomInput) -> np.ndarray | None:
+        """The new scan's pose by the motion prior, when one is given and a valid 4x4 rigid transform."""
+        prior = frame.motion_prior
+        if prior is None or self.stamp_ns is None:
+            return None
+        prior = np.asarray(prior, dtype=np.float64)
+        if prior.shape != (4, 4) or not np.isfinite(prior).all():
+            raise DataError(f"odometry: the motion prior must be a finite 4x4 transform, got shape {prior.shape}")
+        return self.pose @ prior
 
     def agree(self, by_flow: np.ndarray, by_velocity: np.ndarray, periods: float = 1.0) -> bool:
         """Whether the flow's prediction lies within the prior gate of the constant-velocity one; over `periods` scan
@@ -261,44 +278,91 @@ class Odometry:
         return points[np.einsum("ij,ij->i", points[:, :2], points[:, :2]) >= near ** 2]
 
     def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
-               by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
-        """Point-to-plane Gauss-Newton of the registered points against the map: a few iterations from the flow's
-        prediction; where it contradicts constant velocity (or there is no flow), a search from constant velocity
-        too, and the result that matches more points wins (across a gap: lays more points on steep surfaces)."""
+               by_velocity: np.ndarray, periods: float = 1.0, by_prior: np.ndarray | None = None) -> tuple[Alignment, str]:
+        """Point-to-plane Gauss-Newton of the registered points against the map from the predictions, one scan period
+        after the last scan or across a gap."""
         if len(self.map) == 0:
             return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
-        gap = periods >= 1.5
+        if periods < GAP_PERIODS:
+            return self.refine_next(points, weights, target, by_flow, by_velocity, periods)
+        return self.refine_across_gap(points, weights, target, by_flow, by_velocity, by_prior, periods)
+
+    def refine_next(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
+                    by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
+        """A few iterations from the flow's prediction; where it contradicts constant velocity (or there is no flow),
+        a search from constant velocity too, and the result that matches more points wins."""
         if by_flow is not None:
-            gates = self.config.refine_gates
-            if gap:  # scans were skipped: the flow's extrapolated motion is a search start, heading open
-                by_flow, gates = self.best_heading(points, weights, target, by_flow, periods), self.config.search_gates
-            from_flow = point_to_plane(points, weights, target, by_flow, gates, self.config.kernel)
+            from_flow = point_to_plane(points, weights, target, by_flow, self.config.refine_gates, self.config.kernel)
             if self.steps < 2 or self.agree(by_flow, by_velocity, periods):
                 return from_flow, "flow"
         searched = point_to_plane(points, weights, target, by_velocity, self.config.search_gates, self.config.kernel)
-        if by_flow is not None and gap:  # across a gap, the ground fits a wrong heading as well: steep surfaces judge
-            if steep_support(points, searched.transform, target) <= steep_support(points, from_flow.transform, target):
-                return from_flow, "flow"
-        elif by_flow is None or searched.inliers <= from_flow.inliers:
-            return (searched, "velocity") if by_flow is None else (from_flow, "flow")
+        if by_flow is None:
+            return searched, "velocity"
+        if searched.inliers <= from_flow.inliers:
+            return from_flow, "flow"
         self.rejected_flows += 1
         return searched, "velocity"
 
+    def refine_across_gap(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
+                          by_velocity: np.ndarray, by_prior: np.ndarray | None, periods: float) -> tuple[Alignment, str]:
+        """Scans were skipped: the flow's extrapolated motion is searched in heading and refined; so is the motion
+        prior (the commands sent meanwhile: a narrow search), or else constant velocity where it contradicts the flow;
+        the result that lays most points on steep surfaces wins (the ground fits a wrong heading as well; ties go to
+        the prior, then the flow)."""
+        candidates: list[tuple[Alignment, str]] = []
+        prior_start = None
+        if by_prior is not None:
+            reach = self.config.command_yaw_rate * periods * self.config.scan_period
+            prior_start = self.best_heading(points, weights, target, by_prior, (0.0, reach / 2, -reach / 2, reach, -reach))
+        if by_flow is not None:
+            start = self.best_heading(points, weights, target, by_flow, self.gap_headings(periods))
+            if prior_start is not None and self.same_start(start, prior_start):
+                return point_to_plane(points, weights, target, prior_start, self.config.search_gates,
+                                      self.config.kernel), "prior"
+            from_flow = point_to_plane(points, weights, target, start, self.config.search_gates, self.config.kernel)
+            if self.steps < 2 or (by_prior is None and self.agree(start, by_velocity, periods)):
+                return from_flow, "flow"
+            candidates.append((from_flow, "flow"))
+        if prior_start is not None:
+            candidates.append((point_to_plane(points, weights, target, prior_start, self.config.search_gates,
+                                              self.config.kernel), "prior"))
+        else:
+            candidates.append((point_to_plane(points, weights, target, by_velocity, self.config.search_gates,
+                                              self.config.kernel), "velocity"))
+        if len(candidates) == 1:
+            return candidates[0]
+        (from_flow, _), (other, named) = candidates
+        flow_support, other_support = (steep_support(points, found.transform, target) for found in (from_flow, other))
+        if other_support < flow_support or (named == "velocity" and other_support == flow_support):
+            return from_flow, "flow"
+        self.rejected_flows += 1
+        return other, named
+
+    @staticmethod
+    def same_start(first: np.ndarray, second: np.ndarray) -> bool:
+        """Whether two searched starts are one (within a tenth of the refinement's finest gate and a quarter degree):
+        refined, they would end alike."""
+        deviation = invert(first) @ second
+        return bool(np.linalg.norm(deviation[:3, 3]) < 0.1 and rotation_angle(deviation) < np.radians(0.25))
+
+    def gap_headings(self, periods: float) -> tuple[float, ...]:
+        """The heading offsets (deg) tried across a gap of `periods` scan periods: straight on and the gap headings
+        each way, widened to reach gap_yaw_rate over the gap."""
+        headings = np.asarray(self.config.gap_headings, dtype=np.float64)
+        if headings.size:
+            headings = headings * max(1.0, self.config.gap_yaw_rate * periods * self.config.scan_period / headings.max())
+        return (0.0, *headings, *(-headings))
+
     def best_heading(self, points: np.ndarray, weights: np.ndarray | None, target, start: np.ndarray,
-                     periods: float = 1.0) -> np.ndarray:
-        """Of `start` turned by each of the gap headings (and not; widened to reach gap_yaw_rate over `periods` scan
-        periods), the one whose first search iterations lay most points on steep surfaces (a swerve of 13 degrees in
-        0.3 s left the extrapolated flow 4 degrees off: metres at range, out of the refinement's reach; the ground
-        matches every heading)."""
+                     offsets: tuple[float, ...]) -> np.ndarray:
+        """Of `start` turned by each offset (deg), the one whose first search iterations lay most points on steep
+        surfaces (a swerve of 13 degrees in 0.3 s left the extrapolated flow 4 degrees off: metres at range, out of the
+        refinement's reach; the ground matches every heading)."""
         best, most = start, -1
         stride = max(1, len(points) // HEADING_TRIAL_POINTS)  # a few hundred points tell the headings apart
         points, weights = points[::stride], None if weights is None else weights[::stride]
-        headings = np.asarray(self.config.gap_headings, dtype=np.float64)
-        if headings.size:
-            reach = self.config.gap_yaw_rate * periods * self.config.scan_period
-            headings = headings * max(1.0, reach / headings.max())
-        for offset in (0.0, *headings, *(-headings)):
+        for offset in offsets:
             turned = start.copy()
             turned[:3, :3] = yaw_matrix(np.radians(offset))[:3, :3] @ start[:3, :3]
             found = point_to_plane(points, weights, target, turned, self.config.search_gates[:3], self.config.kernel)

@@ -8,6 +8,7 @@ from collections import deque
 
 import numpy as np
 
+from ssf_common.geometry.kinematics import PlanarState, driven
 from ssf_common.geometry.se3 import yaw_of
 from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_planner_node.core.models import Command
@@ -15,25 +16,15 @@ from ssf_planner_node.core.planner import VehicleState
 
 
 def carried_forward(state: VehicleState, commands: list[tuple[int, Command]], now_ns: int, max_accel: float,
-                    max_decel: float, step_s: float = 0.02) -> VehicleState:
+                    max_decel: float) -> VehicleState:
     """The state at now_ns: `state` driven on by the commands sent since its stamp (each holds until the next one;
     the one in force at the stamp first), the speed following each command within the acceleration limits."""
     if now_ns <= state.stamp_ns:
         return state
-    times = [stamp for stamp, _ in commands]
-    first = max(bisect.bisect_right(times, state.stamp_ns) - 1, 0)
-    x, y, yaw, speed, t = state.x, state.y, state.yaw, state.speed, state.stamp_ns
-    for index in range(first, len(commands)):
-        command = commands[index][1]
-        until = commands[index + 1][0] if index + 1 < len(commands) else now_ns
-        while t < min(until, now_ns):
-            dt = min(step_s, (min(until, now_ns) - t) * 1e-9)
-            change = command.linear - speed
-            speed += float(np.clip(change, -max_decel * dt, max_accel * dt))
-            yaw += command.angular * dt
-            x, y = x + speed * np.cos(yaw) * dt, y + speed * np.sin(yaw) * dt
-            t += int(round(dt * 1e9))
-    return VehicleState(int(now_ns), float(x), float(y), float(np.arctan2(np.sin(yaw), np.cos(yaw))), float(speed))
+    end = driven(PlanarState(state.x, state.y, state.yaw, state.speed),
+                 [(stamp, command.linear, command.angular) for stamp, command in commands], state.stamp_ns, now_ns,
+                 max_accel, max_decel)
+    return VehicleState(int(now_ns), end.x, end.y, end.yaw, end.speed)
 
 
 def vehicle_state(stamp_ns: int, pose: np.ndarray, speed: float) -> VehicleState:

@@ -1,0 +1,66 @@
+"""Planar vehicle motion from velocity commands: where a vehicle that follows each command (forward speed, yaw rate)
+within its acceleration limits goes. The planner carries late odometry forward with it; the odometry takes it as the
+motion prior across skipped scans."""
+
+from __future__ import annotations
+
+import bisect
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from ssf_common.geometry.se3 import invert, yaw_matrix
+
+
+class PlanarState(NamedTuple):
+    """Position, heading and forward speed on the ground plane."""
+
+    x: float
+    y: float
+    yaw: float
+    speed: float
+
+
+def driven(start: PlanarState, commands: Sequence[tuple[int, float, float]], start_ns: int, end_ns: int,
+           max_accel: float, max_decel: float, step_s: float = 0.02) -> PlanarState:
+    """The state at end_ns of a vehicle in `start` at start_ns driven by the commands (stamp, speed, yaw rate; each
+    holds until the next one, the one in force at start_ns first), its speed following each command within the
+    acceleration limits (m/s^2)."""
+    if end_ns <= start_ns:
+        return start
+    times = [stamp for stamp, _, _ in commands]
+    first = max(bisect.bisect_right(times, start_ns) - 1, 0)
+    x, y, yaw, speed = start
+    t = start_ns
+    for index in range(first, len(commands)):
+        _, linear, angular = commands[index]
+        until = min(commands[index + 1][0] if index + 1 < len(commands) else end_ns, end_ns)
+        while t < until:
+            dt = min(step_s, (until - t) * 1e-9)
+            speed += float(np.clip(linear - speed, -max_decel * dt, max_accel * dt))
+            middle = yaw + 0.5 * angular * dt  # the chord of the step's arc
+            x, y = x + speed * np.cos(middle) * dt, y + speed * np.sin(middle) * dt
+            yaw += angular * dt
+            t += int(round(dt * 1e9))
+    return PlanarState(float(x), float(y), float(np.arctan2(np.sin(yaw), np.cos(yaw))), float(speed))
+
+
+def commanded_motion(commands: Sequence[tuple[int, float, float]], start_ns: int, end_ns: int, speed: float,
+                     max_accel: float, max_decel: float, mount: np.ndarray | None = None) -> np.ndarray | None:
+    """How the commands moved the vehicle from start_ns (at `speed`) to end_ns: the vehicle frame then <- the vehicle
+    frame now (4x4, planar), or of a frame `mount`ed on it (vehicle <- that frame, e.g. a LiDAR); None when no command
+    was in force at start_ns (none known yet)."""
+    if not commands or commands[0][0] > start_ns:
+        return None
+    end = driven(PlanarState(0.0, 0.0, 0.0, speed), commands, start_ns, end_ns, max_accel, max_decel)
+    motion = yaw_matrix(end.yaw)
+    motion[:2, 3] = end.x, end.y
+    return motion if mount is None else invert(mount) @ motion @ mount
+
+
+def forward_speed(motion: np.ndarray, seconds: float, mount: np.ndarray | None = None) -> float:
+    """The forward speed (m/s) of a vehicle that moved by `motion` (its frame then <- now) in `seconds`, or whose
+    `mount`ed frame (vehicle <- that frame, e.g. a LiDAR) did."""
+    vehicle = motion if mount is None else mount @ motion @ invert(mount)
+    return float(vehicle[0, 3]) / seconds
