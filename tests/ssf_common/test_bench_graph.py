@@ -89,10 +89,12 @@ def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
     from ssf_common.bench_graph import REALTIME_LOOP_TIMEOUT_S, node_parameters
     from ssf_common.errors import ConfigError
 
-    settings = node_parameters(["ssf_fusion_node:fusion.max_iterations:=1", "ssf_flow_node:estimator:=ego"])
-    assert settings == {"ssf_fusion_node": {"fusion.max_iterations": 1}, "ssf_flow_node": {"estimator": "ego"}}
+    default = next(node for node in bench_graph_spec("urban_200", 1).nodes if node.name == "ssf_fusion_node")
+    assert default.parameters["fusion.max_iterations"] == 1  # in real time the loop answers after its first iteration
+    settings = node_parameters(["ssf_fusion_node:fusion.max_iterations:=3", "ssf_flow_node:estimator:=ego"])
+    assert settings == {"ssf_fusion_node": {"fusion.max_iterations": 3}, "ssf_flow_node": {"estimator": "ego"}}
     fusion = next(node for node in bench_graph_spec("urban_200", 1, settings).nodes if node.name == "ssf_fusion_node")
-    assert fusion.parameters["fusion.max_iterations"] == 1 and fusion.parameters["timeout_s"] == REALTIME_LOOP_TIMEOUT_S == 0.15
+    assert fusion.parameters["fusion.max_iterations"] == 3 and fusion.parameters["timeout_s"] == REALTIME_LOOP_TIMEOUT_S == 0.15
     with pytest.raises(ConfigError, match="no node of that name"):
         bench_graph_spec("urban_200", 1, node_parameters(["recorder:x:=1"]))
     with pytest.raises(ConfigError, match="NODE:NAME:=VALUE"):
