@@ -158,6 +158,35 @@ def test_a_bad_message_is_dropped_and_the_node_keeps_running(nodes):
     assert good.items == ["one", "two"] and subscription.dropped == 1
 
 
+def test_destroying_a_node_lets_its_running_callback_finish_publishing(nodes):
+    """A node destroyed while its spinning thread is inside a slow callback (a fusion step under load) waits for the
+    callback, whose publish still goes out, instead of releasing the writer under it."""
+    talker, relay, listener = nodes("talker"), nodes("relay"), nodes("listener")
+    inside, relayed, errors = threading.Event(), Inbox(), Inbox()
+    String = messages.msg_type("std_msgs/msg/String")
+    forward = relay.create_publisher("std_msgs/msg/String", "/test/relayed")
+
+    def slow(msg) -> None:
+        inside.set()
+        threading.Event().wait(0.5)
+        try:
+            forward.publish(String(data=msg.data + "!"))
+        except Exception as err:  # noqa: BLE001 - the failure this test is about
+            errors(err)
+
+    relay.create_subscription("std_msgs/msg/String", "/test/slow", slow)
+    listener.create_subscription("std_msgs/msg/String", "/test/relayed", lambda msg: relayed(msg.data))
+    publisher = talker.create_publisher("std_msgs/msg/String", "/test/slow")
+    relay.spin_in_thread()
+    listener.spin_in_thread()
+    assert wait_until(lambda: publisher.get_subscription_count() > 0 and forward.get_subscription_count() > 0)
+    publisher.publish(String(data="late"))
+    assert inside.wait(10.0)
+    relay.destroy_node()
+    assert errors.items == []
+    assert wait_until(lambda: relayed.items == ["late!"])
+
+
 def test_two_processes_publish_and_subscribe(nodes):
     listener = nodes("listener")
     inbox = Inbox()

@@ -95,3 +95,17 @@ def test_scans_without_ground_keep_their_objects_bottoms(pair):
     assert estimator.state.above1.all()
     movers = pair.dynamic1[cut]
     assert flow_metrics(result.flow[movers], pair.flow[cut][movers]).epe3d < 0.15
+
+
+@pytest.mark.parametrize("seed", [2, 3, 5])
+def test_a_mask_that_calls_the_static_structure_dynamic_does_not_steer_the_ego(seed):
+    """A carried mask that calls every building and pole dynamic leaves the ground and the cars: the ego motion is
+    aligned on every point, and a refinement without the masked points that fits all of them worse is not kept."""
+    pair = synthetic_pair(seed=seed, agents=8, ego_step=1.0)
+    structure = (pair.class1 != 0) & ~pair.dynamic1
+    estimator = make_estimator("rigid")
+    wrong = estimator.estimate(pair.pc1, pair.pc2, structure.astype(np.float32))
+    assert np.linalg.norm(wrong.ego[:3, 3] - pair.ego[:3, 3]) < 0.01
+    right = estimator.estimate(pair.pc1, pair.pc2, pair.dynamic1.astype(np.float32))  # the same pair, a true mask
+    assert np.linalg.norm(right.ego[:3, 3] - pair.ego[:3, 3]) < 0.01
+    assert not np.allclose(right.ego, wrong.ego)  # the true mask's refinement is kept

@@ -216,7 +216,10 @@ class EmbeddedPublisher:
 
     def publish_raw(self, cdr: bytes | memoryview) -> None:
         """Write one sample given as CDR bytes (encapsulation header included)."""
-        write_raw(self._writer, cdr, self.topic_name)
+        writer = self._writer
+        if writer is None:
+            raise MiddlewareError(f"publisher on '{self.topic_name}' was destroyed; nothing written")
+        write_raw(writer, cdr, self.topic_name)
 
     def matched_count(self) -> int:
         """How many readers are matched."""
@@ -351,8 +354,9 @@ class EmbeddedSubscription:
                 if len(samples) < _TAKE_BATCH:
                     return
         finally:
-            if self._reader is not None and self._has_data is not None:
-                self._watcher.watch(self._has_data, self._notify)
+            condition = self._has_data  # destroy() may run on another thread meanwhile
+            if self._reader is not None and condition is not None:
+                self._watcher.watch(condition, self._notify)
 
     @property
     def guid(self) -> bytes:
@@ -365,7 +369,9 @@ class EmbeddedSubscription:
 
     def destroy(self) -> None:
         """Delete the reader."""
-        self._watcher.forget(self._has_data)
+        condition = self._has_data
+        if condition is not None:
+            self._watcher.forget(condition)
         self._has_data = self._reader = None  # the condition holds the reader
 
 

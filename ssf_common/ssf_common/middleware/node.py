@@ -192,6 +192,7 @@ class Node:
         self._subscriptions: list[Subscription] = []
         self._publishers: list[Publisher] = []
         self._stop = threading.Event()
+        self._spinner: threading.Thread | None = None
         self._backend = make_backend(self._name, self._namespace)
         if self.declare_parameter("use_sim_time", False).value:
             self._clock.use_sim_time = True
@@ -343,6 +344,7 @@ class Node:
         """Spin on a daemon thread (tests, tools)."""
         thread = threading.Thread(target=self.spin, name=f"{self._name}-executor", daemon=True)
         thread.start()
+        self._spinner = thread
         return thread
 
     def request_shutdown(self) -> None:
@@ -358,8 +360,13 @@ class Node:
     def on_shutdown(self) -> None:
         """Hook for subclasses: flush and close what they own (runs before the node is destroyed)."""
 
-    def destroy_node(self) -> None:
-        """Release every publisher, subscription and timer."""
+    def destroy_node(self, timeout_s: float = 30.0) -> None:
+        """Release every publisher, subscription and timer, once a spinning thread has finished its callback (a
+        callback still running would publish through a released writer)."""
+        spinner = self._spinner
+        if spinner is not None and spinner is not threading.current_thread():
+            self.request_shutdown()
+            spinner.join(timeout_s)
         for subscription in self._subscriptions:
             subscription.transport.destroy()
         for publisher in self._publishers:

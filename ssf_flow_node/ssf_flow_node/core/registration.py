@@ -82,6 +82,15 @@ class ScanMatcher:
         return self.fit(source, initial, self.config.refine_points, self.config.refine_distance,
                         self.config.refine_iterations, ordered)
 
+    def fitness(self, source: np.ndarray, transform: np.ndarray, distance: float) -> float:
+        """Share of the first refine_points source points that `transform` brings within `distance` (m) of the target."""
+        import open3d as o3d
+
+        if source.shape[0] == 0 or not self.usable:
+            return 0.0
+        cloud = to_cloud(source[: self.config.refine_points])
+        return float(o3d.pipelines.registration.evaluate_registration(cloud, self.target, distance, transform).fitness)
+
     def align(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False,
               prior: np.ndarray | None = None) -> np.ndarray:
         """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers.

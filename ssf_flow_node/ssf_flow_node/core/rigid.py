@@ -69,9 +69,12 @@ class RigidConfig(Section):
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
-    ego_refit: float = Field(0.02, ge=0.0, le=1.0, description="on the same pair again, the ego motion is refined only "
-                             "when the mask changed on more than this share of its points (the robust kernel copes "
-                             "with the rest)")
+    ego_refit: float = Field(0.02, ge=0.0, le=1.0, description="the ego motion aligned on every point is refined without "
+                             "the mask's dynamic points only where it calls more than this share of them dynamic (the "
+                             "robust kernel copes with the rest)")
+    ego_slack: float = Field(0.03, ge=0.0, le=1.0, description="the refinement without the mask's dynamic points is "
+                             "kept only where it brings all points close to scan t+1 at most this share less often than "
+                             "the alignment on them all (relative)")
 
 
 class Clusters(NamedTuple):
@@ -95,7 +98,7 @@ class ClusterMotions(NamedTuple):
 @dataclass
 class PairState:
     """What one scan pair keeps across the calls of the fusion loop: samples, target normals, ground split, the ego
-    fit's source points (the sample, then ground points) in a fixed random order, and the first ego motion found."""
+    fit's source points (the sample, then ground points) in a fixed random order, and the ego motion aligned on them all."""
 
     key: bytes
     pair: PreparedPair
@@ -109,8 +112,8 @@ class PairState:
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
     low: Plan | None  # those points seen from above
     prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
-    base_ego: np.ndarray | None = None
-    base_dynamic: np.ndarray | None = None
+    base_ego: np.ndarray | None = None  # the ego motion aligned on every point
+    base_fitness: float | None = None  # the share of all points it explains
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
     moved: np.ndarray | None = None  # the sampled points that motion moves
     result: FlowResult | None = None  # the last estimate
@@ -139,7 +142,7 @@ class RigidFlowEstimator:
         if dynamic is not None and state.result is not None and np.array_equal(dynamic, state.moved):
             return state.result  # the mask calls dynamic just what the last estimate moved: nothing new to use
         above1, above2 = state.above1, state.above2
-        # 1. ego motion from the points the mask does not call dynamic (robust kernel for the ones it misses)
+        # 1. ego motion from every point (robust kernel), refined without the mask's dynamic points where that holds
         ego = self.ego_motion(state, dynamic)
         compensated = transform_points(ego, points1)
         # 2. cluster the non-ground points of both scans together (optionally the mask's dynamic points apart)
@@ -196,22 +199,26 @@ class RigidFlowEstimator:
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
-        """Ego motion from the points not called dynamic: a full alignment the first time on a pair (the previous
-        pair's ego motion one of its starts), then a refinement from it where the mask changed enough (the same mask
-        always gives the same answer)."""
-        keep = np.ones(state.source.shape[0], bool)
-        if dynamic is not None:
-            keep[: dynamic.size] = ~dynamic
-        source = state.source[state.order[keep[state.order]]]
+        """Ego motion: a full alignment on every point the first time on a pair (the previous pair's ego motion one of
+        its starts; the robust kernel drops the movers), then, where the mask calls more than `ego_refit` of the points
+        dynamic, a refinement from it without them (the same mask always gives the same answer). A mask never steers
+        the full alignment: a carried mask that misses far static structure and keeps oncoming cars would leave
+        the movers to decide the ego motion."""
         if state.base_ego is None:
-            state.base_ego = state.matcher.align(source, ordered=True, prior=state.prior)
-            state.base_dynamic = None if dynamic is None else dynamic.copy()
+            state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior)
+        if dynamic is None or np.count_nonzero(dynamic) <= self.config.ego_refit * state.source.shape[0]:
             return state.base_ego
-        sampled = state.pair.sample1.indices.size
-        before = np.zeros(sampled, bool) if state.base_dynamic is None else state.base_dynamic
-        now = np.zeros(sampled, bool) if dynamic is None else dynamic
-        changed = np.count_nonzero(before != now) / max(keep.size, 1)
-        return state.base_ego if changed <= self.config.ego_refit else state.matcher.refine(source, state.base_ego, ordered=True)
+        keep = np.ones(state.source.shape[0], bool)
+        keep[: dynamic.size] = ~dynamic
+        refined = state.matcher.refine(state.source[state.order[keep[state.order]]], state.base_ego, ordered=True)
+        # static structure the mask wrongly calls dynamic may have held what the rest cannot (a carried mask that
+        # misses the far buildings leaves the ground and oncoming cars): the refinement must fit all the points closely
+        # (within a quarter of the refinement's gate) nearly as often as the alignment on them all
+        everything, tight = state.source[state.order], self.registration.refine_distance / 4.0
+        if state.base_fitness is None:
+            state.base_fitness = state.matcher.fitness(everything, state.base_ego, tight)
+        worse = state.matcher.fitness(everything, refined, tight) < (1.0 - self.config.ego_slack) * state.base_fitness
+        return state.base_ego if worse else refined
 
 
 class Plan:
