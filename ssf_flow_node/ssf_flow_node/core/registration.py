@@ -82,15 +82,6 @@ class ScanMatcher:
         return self.fit(source, initial, self.config.refine_points, self.config.refine_distance,
                         self.config.refine_iterations, ordered)
 
-    def fitness(self, source: np.ndarray, transform: np.ndarray, distance: float) -> float:
-        """Share of the first refine_points source points that `transform` brings within `distance` (m) of the target."""
-        import open3d as o3d
-
-        if source.shape[0] == 0 or not self.usable:
-            return 0.0
-        cloud = to_cloud(source[: self.config.refine_points])
-        return float(o3d.pipelines.registration.evaluate_registration(cloud, self.target, distance, transform).fitness)
-
     def align(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False,
               prior: np.ndarray | None = None) -> np.ndarray:
         """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers.
@@ -143,10 +134,15 @@ def source_sample(count: int, points: int, seed: int, sample: int) -> np.ndarray
     return order[(sample * points + np.arange(points)) % count]
 
 
+def motion_gap(first: np.ndarray, second: np.ndarray) -> float:
+    """How far apart (m) two transforms move the points of a 1 m radius around the origin, at most."""
+    rotation = np.linalg.norm(first[:3, :3] - second[:3, :3], ord=2)
+    return float(np.linalg.norm(first[:3, 3] - second[:3, 3]) + rotation)
+
+
 def same_motion(first: np.ndarray, second: np.ndarray, distance: float) -> bool:
     """Whether two transforms move every point within `distance` (m) of a 1 m radius around the origin alike."""
-    rotation = np.linalg.norm(first[:3, :3] - second[:3, :3], ord=2)
-    return bool(np.linalg.norm(first[:3, 3] - second[:3, 3]) + rotation < distance)
+    return motion_gap(first, second) < distance
 
 
 def register(source: np.ndarray, target: np.ndarray, config: RegistrationConfig,

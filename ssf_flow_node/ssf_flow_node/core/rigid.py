@@ -18,7 +18,7 @@ from ssf_common.geometry.neighbours import may_be_near
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
-from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
+from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, motion_gap
 
 
 class RigidConfig(Section):
@@ -69,12 +69,12 @@ class RigidConfig(Section):
     attach_distance: float = Field(0.6, ge=0.0, description="points left out of the clusters (low ones) this close to a "
                                    "moving cluster move with it where its motion explains them better (m)")
     mask_threshold: float = Field(0.5, ge=0.0, le=1.0, description="dynamic probability above which a point is dynamic")
-    ego_refit: float = Field(0.02, ge=0.0, le=1.0, description="the ego motion aligned on every point is refined without "
-                             "the mask's dynamic points only where it calls more than this share of them dynamic (the "
-                             "robust kernel copes with the rest)")
-    ego_slack: float = Field(0.03, ge=0.0, le=1.0, description="the refinement without the mask's dynamic points is "
-                             "kept only where it brings all points close to scan t+1 at most this share less often than "
-                             "the alignment on them all (relative)")
+    ego_refit: float = Field(0.02, ge=0.0, le=1.0, description="the ego motion is aligned without the mask's dynamic "
+                             "points too only where it calls more than this share of them dynamic (the robust kernel "
+                             "copes with the rest)")
+    ego_tolerance: float = Field(0.1, ge=0.0, description="the ego motions aligned with and without the mask's dynamic "
+                                 "points agree within this (m, over a 1 m radius); where they do not, the second must "
+                                 "lie this much nearer the previous pair's to be taken")
 
 
 class Clusters(NamedTuple):
@@ -113,7 +113,7 @@ class PairState:
     low: Plan | None  # those points seen from above
     prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
     base_ego: np.ndarray | None = None  # the ego motion aligned on every point
-    base_fitness: float | None = None  # the share of all points it explains
+    ego: np.ndarray | None = None  # the ego motion of the last estimate
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
     moved: np.ndarray | None = None  # the sampled points that motion moves
     result: FlowResult | None = None  # the last estimate
@@ -142,7 +142,7 @@ class RigidFlowEstimator:
         if dynamic is not None and state.result is not None and np.array_equal(dynamic, state.moved):
             return state.result  # the mask calls dynamic just what the last estimate moved: nothing new to use
         above1, above2 = state.above1, state.above2
-        # 1. ego motion from every point (robust kernel), refined without the mask's dynamic points where that holds
+        # 1. ego motion from every point and from the mask's static ones; where they differ, constant velocity judges
         ego = self.ego_motion(state, dynamic)
         compensated = transform_points(ego, points1)
         # 2. cluster the non-ground points of both scans together (optionally the mask's dynamic points apart)
@@ -176,7 +176,7 @@ class RigidFlowEstimator:
         key = fingerprint(pc1, pc2)
         if self.state is not None and self.state.key == key:
             return self.state
-        prior = None if self.state is None else self.state.base_ego
+        prior = None if self.state is None else self.state.ego
         pair = prepare(pc1, pc2, None, self.preprocess, self.scans)
         points1, points2 = pair.sample1.points, pair.sample2.points
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
@@ -199,26 +199,25 @@ class RigidFlowEstimator:
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
-        """Ego motion: a full alignment on every point the first time on a pair (the previous pair's ego motion one of
-        its starts; the robust kernel drops the movers), then, where the mask calls more than `ego_refit` of the points
-        dynamic, a refinement from it without them (the same mask always gives the same answer). A mask never steers
-        the full alignment: a carried mask that misses far static structure and keeps oncoming cars would leave
-        the movers to decide the ego motion."""
+        """Ego motion aligned on every point (the robust kernel drops a few movers) and, where the mask calls more than
+        `ego_refit` of the points dynamic, aligned without them too. Where the two agree within `ego_tolerance`, the
+        second (no movers); where they differ, the first, unless the second lies nearer the previous pair's ego motion
+        (constant velocity) by more than the tolerance. A mask that hides static structure and keeps oncoming cars
+        drags the second away step by step; traffic moving with the ego pulls the first towards standing still, a
+        jump no vehicle makes between two scans."""
         if state.base_ego is None:
             state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior)
-        if dynamic is None or np.count_nonzero(dynamic) <= self.config.ego_refit * state.source.shape[0]:
-            return state.base_ego
-        keep = np.ones(state.source.shape[0], bool)
-        keep[: dynamic.size] = ~dynamic
-        refined = state.matcher.refine(state.source[state.order[keep[state.order]]], state.base_ego, ordered=True)
-        # static structure the mask wrongly calls dynamic may have held what the rest cannot (a carried mask that
-        # misses the far buildings leaves the ground and oncoming cars): the refinement must fit all the points closely
-        # (within a quarter of the refinement's gate) nearly as often as the alignment on them all
-        everything, tight = state.source[state.order], self.registration.refine_distance / 4.0
-        if state.base_fitness is None:
-            state.base_fitness = state.matcher.fitness(everything, state.base_ego, tight)
-        worse = state.matcher.fitness(everything, refined, tight) < (1.0 - self.config.ego_slack) * state.base_fitness
-        return state.base_ego if worse else refined
+        state.ego = state.base_ego
+        if dynamic is not None and np.count_nonzero(dynamic) > self.config.ego_refit * state.source.shape[0]:
+            keep = np.ones(state.source.shape[0], bool)
+            keep[: dynamic.size] = ~dynamic
+            masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
+            tolerance = self.config.ego_tolerance
+            if motion_gap(masked, state.base_ego) <= tolerance or (
+                    state.prior is not None
+                    and motion_gap(masked, state.prior) + tolerance < motion_gap(state.base_ego, state.prior)):
+                state.ego = masked
+        return state.ego
 
 
 class Plan:
