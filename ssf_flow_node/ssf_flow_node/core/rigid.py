@@ -113,7 +113,7 @@ class PairState:
     low: Plan | None  # those points seen from above
     prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
     base_ego: np.ndarray | None = None  # the ego motion aligned on every point
-    ego: np.ndarray | None = None  # the ego motion of the last estimate
+    ego: np.ndarray | None = None  # the ego motion of the last estimate with a mask (else the one on every point)
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
     moved: np.ndarray | None = None  # the sampled points that motion moves
     result: FlowResult | None = None  # the last estimate
@@ -207,8 +207,11 @@ class RigidFlowEstimator:
         jump no vehicle makes between two scans."""
         if state.base_ego is None:
             state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior)
+        if dynamic is None:  # a question without a mask leaves the stream's motion (the next pair's prior) as it was
+            state.ego = state.base_ego if state.ego is None else state.ego
+            return state.base_ego
         state.ego = state.base_ego
-        if dynamic is not None and np.count_nonzero(dynamic) > self.config.ego_refit * state.source.shape[0]:
+        if np.count_nonzero(dynamic) > self.config.ego_refit * state.source.shape[0]:
             keep = np.ones(state.source.shape[0], bool)
             keep[: dynamic.size] = ~dynamic
             masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
