@@ -132,7 +132,7 @@ class RigidFlowEstimator:
         self.scans = ScanCache(preprocess)
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
-        """Flow for every point of pc1; dynamic points of the mask are kept out of the ego registration, and clusters the
+        """Flow for every point of pc1; the ego motion is also aligned without the mask's dynamic points, and clusters the
         mask calls dynamic need fewer points and less evidence to move."""
         state = self.pair_state(pc1, pc2)
         pair = state.pair
