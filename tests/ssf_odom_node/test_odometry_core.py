@@ -104,6 +104,22 @@ def test_ssf_map_holds_no_convoy_points_and_points_map_does():
     assert on_trucks(points.map.points) > 100
 
 
+@pytest.mark.parametrize("target_range", [35.0, 60.0])
+def test_static_points_beyond_the_segmentations_range_join_the_target_never_the_map(target_range):
+    rng = np.random.default_rng(4)
+    ground = np.c_[rng.uniform(-30, 30, (3000, 2)), rng.normal(-1.8, 0.01, 3000)]
+    near_wall = np.c_[rng.uniform(-30, 30, 1500), np.full(1500, 12.0), rng.uniform(-1.8, 3.0, 1500)]
+    far_wall = np.c_[np.full(1500, 50.0), rng.uniform(-15, 15, 1500), rng.uniform(-1.8, 6.0, 1500)]
+    points = np.vstack([ground, near_wall, far_wall])
+    odometry = make_odometry("ssf", OdomConfig(ssf_range=35.0, target_range=target_range))
+    for scan in range(12):  # standing still: every scan observes the same points static
+        odometry.step(OdomInput(scan * 100_000_000, points, np.zeros_like(points), np.zeros(len(points), np.float32)))
+    held, mapped = odometry.map.stored_points, odometry.map.points
+    assert (mapped[:, 0] > 40).sum() == 0  # nothing farther than the segmentation sees is published as static
+    assert (mapped[:, 1] > 11).sum() > 50  # the near wall is confirmed
+    assert ((held[:, 0] > 40).sum() > 50) == (target_range > 40)  # the far wall is registered against
+
+
 def test_covariance_grows_and_is_positive_definite():
     scan1, scan2, _ = convoy_scans()
     odometry = make_odometry("ssf")

@@ -61,6 +61,9 @@ class OdomConfig(Section):
                                             "prediction runs too, and the map keeps whichever fits more points")
     ssf_range: float = Field(35.0, gt=0.0, description="ssf maps static points within this range (m) only: the "
                              "segmentation sees moving objects only where the flow is estimated")
+    target_range: float = Field(60.0, gt=0.0, description="ssf: static points beyond ssf_range and within this range "
+                                "(m) join the registration target for map.confirm_window scans, and the map only once "
+                                "scans observe them within ssf_range (nothing checked that they do not move)")
     kernel: float = Field(0.2, gt=0.0, description="Geman-McClure scale of the point-to-plane residuals (m)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for the normals of map points")
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
@@ -114,7 +117,9 @@ class Odometry:
 
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
-        points, flow, dynamic = self.reduce(*self.check(frame))
+        scan, flow, dynamic = self.check(frame)
+        squared = np.einsum("ij,ij->i", scan[:, :2], scan[:, :2])  # horizontal range, squared
+        points, flow, dynamic = self.reduce(scan, flow, dynamic, squared)
         # 1. predict: the motion the last scan's static flow gave, and constant velocity
         by_flow, by_velocity = self.predict(frame.stamp_ns)
         # 2. the points this method registers and maps: the static ones (ssf) or all
@@ -128,16 +133,16 @@ class Odometry:
         self.next_motion = self.flow_motion(points, flow, dynamic)
         # 6. the registered points join the map at the new pose (for ssf: where the segmentation sees, points that do
         # not move on their own, not where it saw moving points lately, and the scan's beams clear what they pass
-        # through)
-        self.update_map(self.mapped_points(points, flow, dynamic), frame.points,
+        # through; static points farther out join only the registration target, for a few scans)
+        self.update_map(*self.mapped_points(points, flow, dynamic), scan[squared >= self.config.min_range ** 2],
                         self.moving_points(points, flow, dynamic))
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
                         None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
                         alignment.rmse, source, len(self.map), len(registered))
 
-    def reduce(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None):
-        """The points within range, one per voxel, with their flow and dynamic probability."""
-        squared = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
+    def reduce(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None, squared: np.ndarray):
+        """The points within range (`squared`: their horizontal range, squared), one per voxel, with their flow and
+        dynamic probability."""
         keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
         if self.voxel is None:
             self.voxel = self.choose_voxel(points[keep])
@@ -163,14 +168,20 @@ class Odometry:
             return config
         return config.model_copy(update={"confirm": 1, "clear_cell": 0.0, "max_speed": 0.0, "moving_memory": 0.0})
 
-    def update_map(self, mapped: np.ndarray, scan: np.ndarray, moving: np.ndarray | None = None) -> None:
+    def update_map(self, mapped: np.ndarray, observed: np.ndarray | None, scan: np.ndarray,
+                   moving: np.ndarray | None = None) -> None:
         """Insert the mapped points (with normals from their neighbours in the scan) at the current pose; for ssf the
-        voxels they hit gain evidence, the voxels of the moving points are remembered, and the whole scan's beams
-        (sensor frame) clear the voxels they pass through."""
+        voxels the observed ones (None: all) hit gain evidence (the others only join the target, unconfirmed), the
+        voxels of the moving points are remembered, and the beams of the scan (sensor frame, its points beyond the ego)
+        clear the voxels they pass through."""
         moved = transform_points(self.pose, mapped)
         if self.method is OdomMethod.SSF:
-            new = self.map.observe(moved, None if moving is None else transform_points(self.pose, moving))
-            self.map.clear(self.in_range(np.asarray(scan, np.float32)[:, :3], self.config.min_range), self.pose)
+            seen = np.arange(len(moved)) if observed is None else np.flatnonzero(observed)
+            new = seen[self.map.observe(moved[seen], None if moving is None else transform_points(self.pose, moving))]
+            if observed is not None:
+                unseen = np.flatnonzero(~observed)
+                new = np.concatenate([new, unseen[self.map.new_voxels(moved[unseen])]])
+            self.map.clear(scan, self.pose)
         else:
             new = self.map.new_voxels(moved)
         normals = estimate_normals(mapped, self.config.normal_neighbours, new) @ self.pose[:3, :3].T
@@ -244,18 +255,21 @@ class Odometry:
             return points[static], 1.0 - dynamic[static]
         return points, None
 
-    def mapped_points(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None) -> np.ndarray:
-        """The points that join the map: all of them, or for ssf the static ones within the segmentation's range
-        whose own motion (flow less the ego motion of the static flow) is below map.max_speed."""
+    def mapped_points(self, points: np.ndarray, flow: np.ndarray | None,
+                      dynamic: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The points that join the map and which of them are observed (None: all): every point, or for ssf the
+        static ones within the target range whose own motion (flow less the ego motion of the static flow) is below
+        map.max_speed, observed within the segmentation's range."""
         if self.method is not OdomMethod.SSF:
-            return points
-        keep = np.einsum("ij,ij->i", points[:, :2], points[:, :2]) <= self.config.ssf_range ** 2
+            return points, None
+        squared = np.einsum("ij,ij->i", points[:, :2], points[:, :2])
+        keep = squared <= max(self.config.ssf_range, self.config.target_range) ** 2
         if dynamic is not None:
             keep &= dynamic <= self.config.static_threshold
         if flow is not None and self.next_motion is not None and self.config.map.max_speed > 0:
             own = points + flow - (points @ self.next_motion[:3, :3].T + self.next_motion[:3, 3])
             keep &= np.einsum("ij,ij->i", own, own) <= (self.config.map.max_speed * self.config.scan_period) ** 2
-        return points[keep]
+        return points[keep], squared[keep] <= self.config.ssf_range ** 2
 
     def moving_points(self, points: np.ndarray, flow: np.ndarray | None,
                       dynamic: np.ndarray | None) -> np.ndarray | None:
@@ -271,11 +285,6 @@ class Odometry:
             return points[chosen]
         ahead = (points[chosen] + flow[chosen] - self.next_motion[:3, 3]) @ self.next_motion[:3, :3]
         return np.concatenate([points[chosen], ahead])
-
-    @staticmethod
-    def in_range(points: np.ndarray, near: float) -> np.ndarray:
-        """The points farther than `near` (m, horizontally) from the sensor."""
-        return points[np.einsum("ij,ij->i", points[:, :2], points[:, :2]) >= near ** 2]
 
     def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
                by_velocity: np.ndarray, periods: float = 1.0, by_prior: np.ndarray | None = None) -> tuple[Alignment, str]:
