@@ -129,6 +129,17 @@ def test_sampling_one_vocabulary():
     assert len(few) == 32 and set(few) == set(range(10))
 
 
+
+@pytest.mark.parametrize("scale, voxel, dims", [(30.0, 0.8, 3), (30.0, 0.01, 3), (1e5, 1e-4, 3), (5.0, 0.3, 2)])
+def test_voxel_indices_keep_the_first_point_of_every_occupied_voxel(scale, voxel, dims):
+    """32-bit codes, 64-bit codes and the row-wise fallback (a volume beyond 2^62 voxels) all pick the same points as
+    the definition."""
+    points = (np.random.default_rng(7).normal(size=(4000, dims)) * scale).astype(np.float32)
+    first_of: dict[tuple, int] = {}
+    for index, key in enumerate(map(tuple, np.floor(points / np.float32(voxel)).astype(np.int64))):
+        first_of.setdefault(key, index)
+    np.testing.assert_array_equal(voxel_indices(points, voxel), sorted(first_of.values()))
+
 def test_farthest_point_sampling_matches_the_greedy_definition():
     points = np.random.default_rng(4).normal(size=(3000, 3)).astype(np.float32)
     fast = farthest_point_indices(points, 256, start=17)
