@@ -46,16 +46,18 @@ def voxel_components(points: np.ndarray, voxel: float) -> Clustering:
 
 
 def spacing_components(points: np.ndarray, cell: float, reach: float, min_link: float, max_link: float,
-                       sample: int = 2048, seed: int = 0) -> Clustering:
+                       sample: int = 2048, seed: int = 0, spacing: float | None = None) -> Clustering:
     """Connected components of points (sensor frame) linked where they lie closer than `reach` times the scan's point
     spacing at their range, kept within [min_link, max_link] (m): objects a short gap apart stay apart where the scan is
     dense (near the sensor), and sparsely sampled ones hold together (far away). The spacing grows with the range at the
     sensor's angular resolution, measured on the points themselves (the median over up to `sample` of them of the
-    distance to the fourth nearest point, per metre of range); links are made between one point per `cell` voxel."""
+    distance to the fourth nearest point, per metre of range; `spacing`: already measured so); links are made between
+    one point per `cell` voxel."""
     if points.shape[0] == 0:
         return Clustering(np.full(0, -1), 0)
     xyz = np.asarray(points[:, :3], np.float64)
-    link = np.clip(reach * angular_spacing(xyz, sample, seed) * np.linalg.norm(xyz, axis=1), min_link, max_link)
+    spacing = angular_spacing(xyz, sample, seed) if spacing is None else spacing
+    link = np.clip(reach * spacing * np.linalg.norm(xyz, axis=1), min_link, max_link)
     keys = np.floor(xyz / cell).astype(np.int64)
     keys -= keys.min(axis=0)
     span = keys.max(axis=0) + 1

@@ -9,6 +9,7 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from pydantic import Field
+from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
 from ssf_common.geometry.neighbours import may_be_near, nearest
@@ -115,10 +116,11 @@ def carry_mask(points: np.ndarray, flow: np.ndarray, probability: np.ndarray, ne
     moved = np.asarray(points, np.float64)[:, :3] + np.asarray(flow, np.float64)
     following = np.asarray(next_points, np.float64)[:, :3]
     # only the surroundings of the moving points matter: there, the nearest moved point of any kind decides
+    movers = cKDTree(moved[moving])  # one tree of the moved moving points for both questions
     around = np.flatnonzero(may_be_near(moved[moving], moved, 2.0 * radius))
-    around = around[np.isfinite(nearest(moved[moving], moved[around], 2.0 * radius).distance)]
+    around = around[np.isfinite(nearest(moved[moving], moved[around], 2.0 * radius, movers).distance)]
     candidates = np.flatnonzero(may_be_near(moved[moving], following, radius))
-    candidates = candidates[np.isfinite(nearest(moved[moving], following[candidates], radius).distance)]
+    candidates = candidates[np.isfinite(nearest(moved[moving], following[candidates], radius, movers).distance)]
     if candidates.size == 0:
         return prior
     found = nearest(moved[around], following[candidates], radius)

@@ -79,11 +79,12 @@ class GeometricSegmenter:
             moving &= height_above_ground(points, self.config.ground_cell) >= self.config.ground_height
         candidates = np.flatnonzero(moving)
         # 4. clusters of the candidates (linked within a few point spacings); the big-enough, rigidly moving ones are objects
+        spacing = angular_spacing(points[candidates])  # the scan's angular resolution, measured on the candidates
         labels, count = spacing_components(points[candidates], self.config.cluster_cell, self.config.cluster_reach,
-                                           self.config.min_link, self.config.max_link)
+                                           self.config.min_link, self.config.max_link, spacing=spacing)
         moving = self.moving_clusters(points[candidates], flow[candidates], labels, count)
         # 5. fragments: neighbouring moving clusters that move as one and fit one object are one object
-        object_of = self.merge_fragments(points[candidates], velocity[candidates], labels, count, moving)
+        object_of = self.merge_fragments(points[candidates], velocity[candidates], labels, count, moving, spacing)
         objects = np.unique(object_of[moving])
         # 6. slots: the static scene, then one per moving object, with a probability from how fast each cluster moves
         cluster_speed = label_means(speed[candidates], labels, count)
@@ -114,16 +115,17 @@ class GeometricSegmenter:
                 & (rms <= self.config.rigidity))
 
     def merge_fragments(self, points: np.ndarray, velocity: np.ndarray, labels: np.ndarray, count: int,
-                        moving: np.ndarray) -> np.ndarray:
+                        moving: np.ndarray, spacing: float | None = None) -> np.ndarray:
         """(count,) the object of each cluster (the index of one of its clusters): moving clusters whose points lie
         within `cluster_reach` point spacings of each other in the sensor's view (in angle, at any ranges), whose mean
         velocities differ by at most `fragment_speed` and whose union fits `object_footprint` are one object, nearest
         pairs first. A surface seen at a grazing angle (a car's flank) is sampled a beam's spacing over the sine of
-        the incidence apart, wider than a link, and comes apart along the line of sight."""
+        the incidence apart, wider than a link, and comes apart along the line of sight. `spacing`: the points'
+        angular spacing, when already measured."""
         object_of = np.arange(count)
         if np.count_nonzero(moving) < 2:
             return object_of
-        angle = self.config.cluster_reach * angular_spacing(points)
+        angle = self.config.cluster_reach * (angular_spacing(points) if spacing is None else spacing)
         pairs = angular_neighbours(points, np.where(moving[labels], labels, -1), angle, self.config.cluster_cell)
         centres = label_means(points, labels, count)
         pairs = pairs[np.argsort(np.linalg.norm(centres[pairs[:, 0]] - centres[pairs[:, 1]], axis=1), kind="stable")]
