@@ -10,7 +10,8 @@ from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, transform_points
 from ssf_common.scans import read_scan
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, make_odometry
-from ssf_odom_node.core.registration import PlaneTarget, estimate_normals, flow_transform, steep_support
+from ssf_odom_node.core.registration import (PlaneTarget, estimate_normals, flow_transform, point_to_plane,
+                                              steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap
 
 CONVOY_STEP = 1.0  # m per scan, along x (world)
@@ -78,7 +79,8 @@ def test_weighted_kabsch_recovers_the_motion_with_outliers_down_weighted():
 @pytest.mark.parametrize("method", list(OdomMethod))
 def test_each_variant_on_a_static_street_with_a_moving_convoy(method):
     scan1, scan2, truth = convoy_scans()
-    odometry = make_odometry(method)
+    # which points each variant registers, alike near and far (near weighting has a test of its own)
+    odometry = make_odometry(method, OdomConfig(near_range=0.0))
     first = odometry.step(scan1 if method is not OdomMethod.POINTS else OdomInput(0, scan1.points))
     second = odometry.step(scan2)
     np.testing.assert_allclose(first.pose, np.eye(4))
@@ -88,6 +90,29 @@ def test_each_variant_on_a_static_street_with_a_moving_convoy(method):
         assert second.predicted_by == "flow"
     else:  # whole scans, or every point's flow, are pulled towards the convoy
         assert translation > (0.1 if method is OdomMethod.POINTS else 0.04)
+
+
+def test_near_points_weigh_less_so_a_queue_moving_with_the_ego_does_not_hold_it_still():
+    """Cars all around the ego moving with it, labelled static, and the flow's motion taken by them (standing still):
+    registered alike, they keep the pose still; weighted by their range, the street beyond them gives the motion."""
+    rng = np.random.default_rng(3)
+    world, moving = street(1, moved=False)
+    static = world[~moving]
+    queue = np.vstack([faces(rng, (x, y, -1.8), (4.5, 1.9, 1.6), 300)
+                       for x, y in ((-9, -3.5), (-3, -3.5), (3, -3.5), (9, -3.5), (6, 3.5), (-6, 3.5))])
+    first = np.vstack([static, queue])
+    target = PlaneTarget.build(first, estimate_normals(first, 8))
+    second = np.vstack([transform_points(invert(EGO), static), queue])  # the queue keeps its place around the sensor
+    odometry = make_odometry("ssf")
+    weights = odometry.near_weights(second)
+    assert weights.min() == pytest.approx(odometry.config.near_weight) and weights.max() == 1.0
+    config = odometry.config
+    plain = point_to_plane(second, None, target, np.eye(4), config.search_gates, config.kernel)
+    near = point_to_plane(second, weights, target, np.eye(4), config.search_gates, config.kernel)
+    assert pose_error(plain.transform, EGO)[0] > 0.3  # held still by the queue
+    assert pose_error(near.transform, EGO)[0] < 0.02
+    off = make_odometry("ssf", OdomConfig(near_range=0.0))
+    assert np.all(off.near_weights(second) == 1.0)
 
 
 def test_ssf_map_holds_no_convoy_points_and_points_map_does():
