@@ -52,14 +52,27 @@ def load_node_spec(executable: str):
 def test_each_executable_joins_the_graph_and_stops_on_sigint(executable):
     topic, type_name = SHELL_NODES[executable]
     process = start_node(executable)
+    lines: list[str] = []
+    started = threading.Event()
+
+    def read() -> None:  # the node subscribes while it is built and says "started" after: wait for both
+        for line in process.stdout:
+            lines.append(line)
+            if "started (dds backend)" in line:
+                started.set()
+
+    reader = threading.Thread(target=read, daemon=True)
+    reader.start()
     probe = Node("probe")
     try:
         publisher = probe.create_publisher(type_name, topic)
         assert wait_until(lambda: publisher.get_subscription_count() == 1, timeout_s=30), f"{executable} never subscribed"
+        assert started.wait(timeout=30), "".join(lines)
         process.send_signal(signal.SIGINT)
-        output, _ = process.communicate(timeout=20)
+        process.wait(timeout=20)
+        reader.join(timeout=5)
+        output = "".join(lines)
         assert process.returncode == 0, output
-        assert "started (dds backend)" in output
         assert "Traceback" not in output
     finally:
         if process.poll() is None:
