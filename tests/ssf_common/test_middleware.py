@@ -158,6 +158,21 @@ def test_a_bad_message_is_dropped_and_the_node_keeps_running(nodes):
     assert good.items == ["one", "two"] and subscription.dropped == 1
 
 
+def test_a_stopped_node_still_takes_what_it_received(nodes):
+    talker, recorder = nodes("talker"), nodes("recorder")
+    inbox = Inbox()
+    recorder.create_subscription("std_msgs/msg/String", "/test/last_words", inbox, QOS_SENSOR_DATA)
+    publisher = talker.create_publisher("std_msgs/msg/String", "/test/last_words", QOS_SENSOR_DATA)
+    assert wait_until(lambda: publisher.get_subscription_count() > 0)
+    String = messages.msg_type("std_msgs/msg/String")
+    recorder.request_shutdown()  # asked to stop before its executor took anything: the samples wait in the reader
+    for text in ("one", "two", "three"):
+        publisher.publish(String(data=text))
+    recorder.spin()  # returns at once: it is stopping
+    assert inbox.items == []
+    assert wait_until(lambda: (recorder.deliver_received(), [m.data for m in inbox.items])[1] == ["one", "two", "three"])
+
+
 def test_destroying_a_node_lets_its_running_callback_finish_publishing(nodes):
     """A node destroyed while its spinning thread is inside a slow callback (a fusion step under load) waits for the
     callback, whose publish still goes out, instead of releasing the writer under it."""

@@ -134,7 +134,8 @@ def make_recorder_class():
             self.get_logger().info(f"recording {topic} ({type_name})")
 
         def on_shutdown(self) -> None:
-            """Close the bag: summary, metadata record and metadata.yaml."""
+            """Write what already arrived, then close the bag: summary, metadata record and metadata.yaml."""
+            self.deliver_received()
             self.writer.close()
             self.get_logger().info(f"wrote {self.writer.message_count} messages to {self.writer.directory}")
 

@@ -360,6 +360,13 @@ class Node:
     def on_shutdown(self) -> None:
         """Hook for subclasses: flush and close what they own (runs before the node is destroyed)."""
 
+    def deliver_received(self) -> None:
+        """Hand every sample already received but not yet taken to its callback (a recorder's last messages when
+        it is asked to stop: a stop request leaves them waiting in the readers)."""
+        for subscription in list(self._subscriptions):
+            if subscription.transport is not None:
+                subscription.transport.drain()
+
     def destroy_node(self, timeout_s: float = 30.0) -> None:
         """Release every publisher, subscription and timer, once a spinning thread has finished its callback (a
         callback still running would publish through a released writer)."""
