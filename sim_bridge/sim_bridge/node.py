@@ -1,4 +1,5 @@
-"""sim_bridge: the simulator as a node — scans, /clock and ground truth out, /cmd_vel in, the episode scored."""
+"""sim_bridge: the simulator as a node — scans, /clock, the odometer's /vehicle/twist and ground truth out,
+/cmd_vel in, the episode scored."""
 
 from __future__ import annotations
 
@@ -91,6 +92,7 @@ class SimBridgeNode(Node):
         self.pub_points = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, QOS_SENSOR_DATA)
         self.pub_truth = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.GT_FLOW, QOS_DEFAULT)
         self.pub_odom = self.create_publisher("nav_msgs/msg/Odometry", topics.GT_ODOM, QOS_DEFAULT)
+        self.pub_twist = self.create_publisher("geometry_msgs/msg/TwistStamped", topics.VEHICLE_TWIST, QOS_DEFAULT)
         self.pub_tf = self.create_publisher("tf2_msgs/msg/TFMessage", topics.TF, QOS_DEFAULT)
         self.pub_obstacles = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.GT_OBSTACLES, QOS_DEFAULT)
         self.pub_markers = self.create_publisher("visualization_msgs/msg/MarkerArray", topics.MARKERS, QOS_DEFAULT)
@@ -188,6 +190,8 @@ class SimBridgeNode(Node):
         self.pub_clock.publish(ros_messages.clock(stamp))
         self.pub_tf.publish(ros_messages.transforms(frame.base_pose, frame.pose, stamp))
         self.pub_odom.publish(ros_messages.odometry(frame.base_pose, frame.ego, stamp))
+        if frame.measured is not None:
+            self.pub_twist.publish(ros_messages.vehicle_twist(frame.measured, stamp))
         # the ground truth and the markers cost a few ms per step: built only when someone listens (a recorder, a view)
         if self.pub_obstacles.get_subscription_count():
             self.pub_obstacles.publish(ros_messages.obstacles(frame.agents, stamp))

@@ -9,7 +9,7 @@ import numpy as np
 from sim_bridge.ego import EgoState
 from sim_bridge.ground_truth import FlowTruth
 from sim_bridge.lidar import Scan
-from sim_bridge.simulator import EpisodeStatus
+from sim_bridge.simulator import EpisodeStatus, MeasuredMotion
 from sim_bridge.agents import AgentKind, AgentStates
 from ssf_common import messages
 from ssf_common import pose_msgs
@@ -61,6 +61,17 @@ def odometry(base_pose: np.ndarray, ego: EgoState, stamp_ns: int) -> Any:
             pose=pose_msgs.pose_msg(base_pose), covariance=np.zeros(36)
         ),
         twist=messages.msg_type("geometry_msgs/msg/TwistWithCovariance")(twist=twist, covariance=np.zeros(36)),
+    )
+
+
+def vehicle_twist(measured: MeasuredMotion, stamp_ns: int) -> Any:
+    """geometry_msgs/TwistStamped of base_link: the odometer's speed and yaw rate over the step ending at the stamp."""
+    return messages.msg_type("geometry_msgs/msg/TwistStamped")(
+        header=messages.header(stamp_ns, BASE_FRAME),
+        twist=messages.msg_type("geometry_msgs/msg/Twist")(
+            linear=pose_msgs.vector3_msg(np.array([measured.speed, 0.0, 0.0])),
+            angular=pose_msgs.vector3_msg(np.array([0.0, 0.0, measured.yaw_rate])),
+        ),
     )
 
 

@@ -172,6 +172,17 @@ class EgoConfig(Section):
     start_heading: float = Field(0.0, ge=-180.0, le=180.0, description="start heading relative to the road (deg)")
 
 
+class OdometerConfig(Section):
+    """The ego's own motion sensors, as a car's bus reports them once per step: the wheel speed (encoder ticks over
+    the step) and a yaw-rate gyro, each with a per-episode error drawn once and noise on every sample."""
+
+    speed_scale: float = Field(0.01, ge=0.0, le=0.2, description="sigma of the per-episode wheel-speed scale error "
+                               "(tyre radius, load), relative")
+    speed_noise: float = Field(0.05, ge=0.0, le=2.0, description="sigma of each sample's speed noise (m/s)")
+    yaw_rate_bias: float = Field(0.002, ge=0.0, le=0.1, description="sigma of the per-episode gyro bias (rad/s)")
+    yaw_rate_noise: float = Field(0.003, ge=0.0, le=0.1, description="sigma of each sample's yaw-rate noise (rad/s)")
+
+
 class EpisodeConfig(Section):
     """Episode timing: one step per LiDAR sweep, so dt is the sweep period (1 / lidar.rate_hz)."""
 
@@ -193,6 +204,7 @@ class Scenario(Section):
     agents: AgentsConfig = AgentsConfig()
     lidar: LidarConfig = LidarConfig()
     ego: EgoConfig = EgoConfig()
+    odometer: OdometerConfig = OdometerConfig()
     episode: EpisodeConfig = EpisodeConfig()
 
     @model_validator(mode="before")

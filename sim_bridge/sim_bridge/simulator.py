@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import cached_property, partial
+from typing import NamedTuple
 
 import numpy as np
 
@@ -13,13 +14,40 @@ from sim_bridge.ego import EgoState, EgoVehicle, Outcome, VelocityCommand
 from sim_bridge.footprints import Rectangles, rectangle_circle_distance, rectangle_distance
 from sim_bridge.ground_truth import FlowTruth, scene_flow
 from sim_bridge.lidar import Lidar, Scan
-from sim_bridge.scenario import Scenario
+from sim_bridge.scenario import OdometerConfig, Scenario
 from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint, agent_mesh
 from sim_bridge.traffic import Traffic
 from sim_bridge.world import PointClass, World
 from ssf_common.checks import require_seed
 
 CLEARANCE_RADIUS = 30.0
+
+
+class MeasuredMotion(NamedTuple):
+    """The ego's motion over one step as its own sensors measured it: forward speed (m/s) and yaw rate (rad/s)."""
+
+    speed: float
+    yaw_rate: float
+
+
+class Odometer:
+    """The wheel-speed sensor and yaw-rate gyro of one episode: a scale error and a bias drawn once, noise on every
+    sample."""
+
+    def __init__(self, config: OdometerConfig, rng: np.random.Generator) -> None:
+        self.config, self.rng = config, rng
+        self.scale = 1.0 + config.speed_scale * rng.standard_normal()
+        self.bias = config.yaw_rate_bias * rng.standard_normal()
+
+    def measure(self, before: EgoState, after: EgoState, dt: float) -> MeasuredMotion:
+        """What the sensors report for a step from `before` to `after`: the distance driven along the heading and the
+        turn, each over the step (encoder ticks and an integrating gyro), with their errors."""
+        turned = float(np.angle(np.exp(1j * (after.yaw - before.yaw))))
+        along = np.array([np.cos(before.yaw + turned / 2), np.sin(before.yaw + turned / 2)])  # the step's chord
+        driven = float(np.dot([after.x - before.x, after.y - before.y], along))
+        speed = driven / dt * self.scale + self.config.speed_noise * self.rng.standard_normal()
+        yaw_rate = turned / dt + self.bias + self.config.yaw_rate_noise * self.rng.standard_normal()
+        return MeasuredMotion(float(speed), float(yaw_rate))
 
 
 @dataclass(frozen=True)
@@ -47,6 +75,7 @@ class Frame:
     agents: AgentStates
     status: EpisodeStatus
     truth: Callable[[], FlowTruth | None] = field(default=lambda: None, repr=False, compare=False)  # makes `flow`
+    measured: MeasuredMotion | None = None  # the step that ended here, as the odometer saw it (None on the first)
 
     @cached_property
     def flow(self) -> FlowTruth | None:
@@ -86,6 +115,7 @@ class Simulator:
         )
         self.traffic = place_traffic(self.world, self.seed)
         self._noise = np.random.default_rng([self.seed, 3])
+        self.odometer = Odometer(self.scenario.odometer, np.random.default_rng([self.seed, 4]))
         self.index = 0
         self.distance = 0.0
         self.min_clearance = np.inf
@@ -132,7 +162,7 @@ class Simulator:
         self.traffic.step(self.dt, self._ego_footprint())
         self.index += 1
         self._update_outcome()
-        self._frame = self._observe(previous)
+        self._frame = self._observe(previous, self.odometer.measure(before, state, self.dt))
         return self._frame
 
     def _ego_footprint(self) -> EgoFootprint:
@@ -204,8 +234,9 @@ class Simulator:
         nearest = int(all_distances.argmin())
         return float(all_distances[nearest]), names[nearest] if all_distances[nearest] <= 0.0 else ""
 
-    def _observe(self, previous: Frame | None) -> Frame:
-        """Scan from the current ego pose and, given the previous frame, the flow of its scan."""
+    def _observe(self, previous: Frame | None, measured: MeasuredMotion | None = None) -> Frame:
+        """Scan from the current ego pose and, given the previous frame, the flow of its scan (`measured`: the step
+        to here as the odometer saw it)."""
         base = self.ego.base_pose()
         pose = base @ self.mount
         agents = self.traffic.states()
@@ -225,7 +256,8 @@ class Simulator:
             float(self.min_clearance),
             self.collided_with,
         )
-        return Frame(self.index, int(round(self.index * self.dt * 1e9)), scan, pose, base, state, agents, status, truth)
+        return Frame(self.index, int(round(self.index * self.dt * 1e9)), scan, pose, base, state, agents, status, truth,
+                     measured)
 
     def agent_surfaces(self, agents: AgentStates):
         """Triangles of every agent (for checking ground truth against surfaces)."""

@@ -21,5 +21,6 @@ GT_ODOM = "/sim/ground_truth/odom"
 EPISODE = "/sim/episode"
 MARKERS = "/sim/markers"
 SSF_MARKERS = "/ssf/markers"  # perceived obstacles, their velocity arrows and the plan (visualization_msgs/MarkerArray)
+VEHICLE_TWIST = "/vehicle/twist"  # the vehicle's own wheel speed and yaw rate (geometry_msgs/TwistStamped)
 ROUTE = "/sim/route"  # the route A -> B in the odometry frame (latched nav_msgs/Path)
 DIAGNOSTICS = "/diagnostics"

@@ -1,6 +1,6 @@
-"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) in, and /cmd_vel as
-the motion prior across skipped scans; /odom, the odom -> base_link transform on /tf, /ssf/path and the static map on
-/ssf/map out."""
+"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) in, /cmd_vel as
+the motion prior across skipped scans, and optionally the vehicle's own measured motion (wheel speed, yaw rate);
+/odom, the odom -> base_link transform on /tf, /ssf/path and the static map on /ssf/map out."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg, scene_flow_from_cloud,
                                     semantic_flow_from_cloud)
 from ssf_common.errors import ConfigError, MessageError, SsfError
-from ssf_common.geometry.kinematics import commanded_motion, forward_speed
+from ssf_common.geometry.kinematics import commanded_motion, forward_speed, measured_motion
 from ssf_common.geometry.se3 import invert
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
@@ -30,6 +30,7 @@ from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_od
 
 PENDING_FLOWS = 8  # flows kept while their mask is on the way (input: flow_mask)
 COMMANDS_KEPT = 600  # velocity commands kept for the motion prior: a minute at 10 Hz, far longer than any gap
+TWISTS_KEPT = 6000  # measured twists kept: a minute at 100 Hz
 
 
 class OdomNodeConfig(Section):
@@ -44,6 +45,10 @@ class OdomNodeConfig(Section):
     command_topic: str = Field(topics.CMD_VEL, description="velocity commands (geometry_msgs/Twist) the vehicle "
                                "obeys: across skipped scans, the motion they drove is the odometry's prior (see "
                                "command_yaw_rate); empty: no prior (a vehicle driven by something else)")
+    twist_topic: str = Field("", description="the vehicle's own measured motion (geometry_msgs/TwistStamped of "
+                             "base_link: wheel speed, yaw-rate gyro), e.g. /vehicle/twist from the simulator: between "
+                             "scans it is the odometry's measured motion, which traffic moving with the ego cannot "
+                             "fool (`ssf eval odom --methods ssf+twist`); empty: none (the paper's SSF)")
     max_accel: float = Field(3.0, gt=0.0, description="the vehicle follows the commanded speed within this "
                              "acceleration (m/s^2) ...")
     max_decel: float = Field(6.0, gt=0.0, description="... and this deceleration (m/s^2, positive)")
@@ -87,7 +92,8 @@ class OdomNode(Node):
         self.path: collections.deque[Any] = collections.deque(maxlen=self.wiring.path_length)
         self.flows: collections.OrderedDict[int, Any] = collections.OrderedDict()
         self.commands: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=COMMANDS_KEPT)
-        self.commands_lock = threading.Lock()  # the worker reads what the subscription appends
+        self.twists: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=TWISTS_KEPT)
+        self.commands_lock = threading.Lock()  # the worker reads what the subscriptions append
         self.speed = 0.0  # base_link's forward speed at the last scan (m/s): where the motion prior starts from
         self.odom_pub = self.create_publisher("nav_msgs/msg/Odometry", topics.ODOM, QOS_DEFAULT)
         self.tf_pub = self.create_publisher("tf2_msgs/msg/TFMessage", topics.TF, QOS_DEFAULT)
@@ -106,6 +112,9 @@ class OdomNode(Node):
             self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
         if self.wiring.command_topic:
             self.create_subscription("geometry_msgs/msg/Twist", self.wiring.command_topic, self.on_command, QOS_DEFAULT)
+        if self.wiring.twist_topic:
+            self.create_subscription("geometry_msgs/msg/TwistStamped", self.wiring.twist_topic, self.on_twist,
+                                     QOS_DEFAULT)
         if self.wiring.input == "semantic_flow":  # inputs last: the node is whole once they are matched
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, self.on_semantic_flow, QOS_DEFAULT)
         else:
@@ -161,6 +170,29 @@ class OdomNode(Node):
                 self.commands.clear()
             self.commands.append((now, linear, angular))
 
+    def on_twist(self, msg: Any) -> None:
+        """Remember one measurement of the vehicle's speed and yaw rate (over the time since the one before)."""
+        stamp = messages.stamp_ns(msg.header.stamp)
+        linear, angular = float(msg.twist.linear.x), float(msg.twist.angular.z)
+        if not (np.isfinite(linear) and np.isfinite(angular)):
+            self.get_logger().warning(f"dropped a measurement on {self.wiring.twist_topic} that is not finite")
+            return
+        with self.commands_lock:
+            if self.twists and stamp <= self.twists[-1][0]:
+                if stamp == self.twists[-1][0]:
+                    return  # the same sample again
+                self.twists.clear()  # stamps went back: a restarted stream
+            self.twists.append((stamp, linear, angular))
+
+    def measured_prior(self, stamp_ns: int) -> np.ndarray | None:
+        """The sensor's motion from the last scan to this one as the vehicle's measurements give it; None before the
+        first scan, without measurements, or when they stopped."""
+        if self._last_stamp is None:
+            return None
+        with self.commands_lock:
+            twists = list(self.twists)
+        return measured_motion(twists, self._last_stamp, stamp_ns, self.mount)
+
     def motion_prior(self, stamp_ns: int) -> np.ndarray | None:
         """The sensor's motion from the last scan to this one (last scan's sensor frame <- this one's) as the
         commands sent in between drove the vehicle; None before the first scan or without commands."""
@@ -188,7 +220,8 @@ class OdomNode(Node):
                 self.get_logger().warning(f"stamp {frame.stamp_ns} is older than the last scan's; dropped")
             return
         started = time.perf_counter()
-        step = self.odometry.step(dataclasses.replace(frame, motion_prior=self.motion_prior(frame.stamp_ns)))
+        step = self.odometry.step(dataclasses.replace(frame, motion_prior=self.motion_prior(frame.stamp_ns),
+                                                      measured_motion=self.measured_prior(frame.stamp_ns)))
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stats.record(self._compute_ms[-1], "steps")
         self._last_stamp = frame.stamp_ns

@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from sim_bridge.ego import Outcome, VelocityCommand
-from sim_bridge.ros_messages import episode_result, markers, obstacles, scan_cloud, truth_cloud
-from sim_bridge.simulator import Simulator
+from sim_bridge.ros_messages import episode_result, markers, obstacles, scan_cloud, truth_cloud, vehicle_twist
+from sim_bridge.simulator import MeasuredMotion, Simulator
 from ssf_common import messages
+from ssf_common.geometry.kinematics import measured_motion
 from ssf_common.pointcloud import cloud_to_array
 
 
@@ -91,3 +93,48 @@ def test_frames_become_ros_messages(small_scenario):
     result = episode_result(second.status, "small", 4, 20, second.stamp_ns)
     decoded = messages.deserialize(messages.serialize(result), "ssf_interfaces/msg/EpisodeResult")
     assert decoded.outcome == 0 and decoded.num_agents == 20
+
+
+def drive_with_odometer(sim: Simulator, steps: int) -> list:
+    """The frames of a drive that speeds up, turns left and brakes."""
+    frames = [sim.reset()]
+    for step in range(steps):
+        command = VelocityCommand(6.0, 0.3 if 10 <= step < 20 else 0.0) if step < 25 else VelocityCommand(0.0, 0.0)
+        frames.append(sim.step(command))
+    return frames
+
+
+def test_the_odometer_measures_each_step_and_errs_as_configured(small_scenario):
+    """Without errors the wheel speed and the gyro give back the driven motion; with them, the scale error and the
+    bias are one per episode and the noise has the configured spread."""
+    exact = {f"odometer.{name}": 0.0 for name in ("speed_scale", "speed_noise", "yaw_rate_bias", "yaw_rate_noise")}
+    frames = drive_with_odometer(Simulator(small_scenario(agents=0, **exact), seed=1), 30)
+    assert frames[0].measured is None
+    for before, after in zip(frames, frames[1:]):
+        truth = np.linalg.inv(before.pose) @ after.pose  # the sensor's motion over the step
+        dt = (after.stamp_ns - before.stamp_ns) * 1e-9
+        measured = measured_motion([(after.stamp_ns, *after.measured)], before.stamp_ns, after.stamp_ns,
+                                   np.linalg.inv(after.base_pose) @ after.pose)
+        assert np.linalg.norm(measured[:2, 3] - truth[:2, 3]) < 1e-3 * max(1.0, after.ego.speed * dt * 10)
+        turned = np.arctan2(truth[1, 0], truth[0, 0])
+        assert abs(after.measured.yaw_rate * dt - turned) < 1e-4  # planar: the slope tilts the sensor a little
+    assert max(frame.measured.speed for frame in frames[1:]) > 5.0
+    noisy = {"odometer.speed_noise": 0.05, "odometer.yaw_rate_noise": 0.003}  # scale error and bias as by default
+    drawn = []
+    for seed in (1, 2):
+        sim = Simulator(small_scenario(agents=0, **noisy), seed=seed)
+        measured = drive_with_odometer(sim, 60)
+        truth = drive_with_odometer(Simulator(small_scenario(agents=0, **exact), seed=seed), 60)
+        drawn.append((sim.odometer.scale, sim.odometer.bias))
+    assert drawn[0][0] != drawn[1][0] and drawn[0][1] != drawn[1][1]  # drawn once per episode
+    speed_error = np.array([m.measured.speed - t.measured.speed for m, t in zip(measured[1:], truth[1:])])
+    yaw_error = np.array([m.measured.yaw_rate - t.measured.yaw_rate for m, t in zip(measured[1:], truth[1:])])
+    still = np.array([t.measured.speed == 0.0 for t in truth[1:]])  # where the car stands, only the noise is left
+    assert still.sum() > 20 and 0.03 < np.std(speed_error[still]) < 0.08
+    assert 0.0015 < np.std(yaw_error) < 0.0045 and np.mean(yaw_error) == pytest.approx(sim.odometer.bias, abs=0.002)
+
+
+def test_the_odometer_is_a_twist_stamped_in_base_link():
+    msg = vehicle_twist(MeasuredMotion(4.5, -0.2), 300_000_000)
+    assert msg.header.frame_id == "base_link" and messages.stamp_ns(msg.header.stamp) == 300_000_000
+    assert (msg.twist.linear.x, msg.twist.angular.z) == (4.5, -0.2)

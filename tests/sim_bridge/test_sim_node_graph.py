@@ -16,7 +16,8 @@ from ssf_common.bags import open_bag
 from ssf_common.pointcloud import cloud_to_array
 
 STEPS = 10  # 1 s of sim time at dt 0.1
-TOPICS = ["/lidar/points", "/sim/ground_truth/flow", "/sim/ground_truth/odom", "/tf", "/sim/episode", "/clock"]
+TOPICS = ["/lidar/points", "/sim/ground_truth/flow", "/sim/ground_truth/odom", "/tf", "/sim/episode", "/clock",
+          "/vehicle/twist"]
 
 
 @pytest.fixture(scope="module")
@@ -62,6 +63,10 @@ def test_every_step_is_recorded_and_the_episode_summarised(recording):
     assert len(found["/sim/ground_truth/flow"]) == STEPS
     assert len(found["/sim/ground_truth/odom"]) == STEPS + 1
     stamps = [messages.stamp_ns(m.header.stamp) for m in found["/lidar/points"]]
+    twists = found["/vehicle/twist"]  # the odometer's measurement of every step, stamped at its end
+    assert [messages.stamp_ns(m.header.stamp) for m in twists] == stamps[1:]
+    truth = [m.twist.twist.linear.x for m in found["/sim/ground_truth/odom"]]
+    assert all(abs(m.twist.linear.x - (before + after) / 2) < 0.5 for m, before, after in zip(twists, truth, truth[1:]))
     assert stamps == [i * 100_000_000 for i in range(STEPS + 1)]
     assert [messages.stamp_ns(m.clock) for m in found["/clock"]] == stamps
     final = found["/sim/episode"][-1]

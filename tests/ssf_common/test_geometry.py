@@ -10,7 +10,7 @@ from ssf_common.geometry.boxes import bounding_box, box_corners, min_area_rectan
 from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, voxel_components
 from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
 from ssf_common.geometry.ground import ground_mask, height_above_ground
-from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed
+from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed, measured_motion
 from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import Sampling, farthest_point_indices, greedy_farthest_indices, sample_indices, voxel_indices
@@ -278,3 +278,23 @@ def test_commands_drive_the_vehicle_within_its_acceleration_limits():
     assert commanded_motion([(second, 4.0, 0.0)], 0, 2 * second, 4.0, 3.0, 6.0) is None  # nothing in force at the start
     assert forward_speed(motion, 2.0) == pytest.approx(8.0 * np.sin(1.0) / 2.0, abs=0.005)
     assert forward_speed(mounted, 2.0, mount) == pytest.approx(forward_speed(motion, 2.0))
+
+
+def test_measured_motion_integrates_each_sample_over_the_time_before_it():
+    """Wheel speed and yaw rate, each measured over the time since the sample before: a straight stretch, then an arc;
+    the last sample holds to the end; nothing measured after the start, or a sensor gone quiet, gives None."""
+    tenth = 100_000_000
+    straight = measured_motion([(tenth, 5.0, 0.0), (2 * tenth, 5.0, 0.0)], 0, 2 * tenth)
+    assert straight[:3, 3] == pytest.approx([1.0, 0.0, 0.0]) and straight[:3, :3] == pytest.approx(np.eye(3))
+    samples = [(tenth * k, 4.0, 0.5) for k in range(1, 21)]  # 2 s on a circle of radius 8 m
+    arc = measured_motion(samples, 0, 20 * tenth)
+    assert np.arctan2(arc[1, 0], arc[0, 0]) == pytest.approx(1.0)
+    assert arc[:2, 3] == pytest.approx([8.0 * np.sin(1.0), 8.0 * (1 - np.cos(1.0))], abs=0.01)
+    assert measured_motion(samples[:10], 0, 20 * tenth) is None  # the newest sample is a second old
+    held = measured_motion(samples[:19], 0, 20 * tenth)  # one sample late: the last one holds
+    assert held == pytest.approx(arc, abs=1e-9)
+    assert measured_motion(samples, 20 * tenth, 21 * tenth) is None  # nothing measured after the start
+    later = measured_motion(samples, 5 * tenth, 6 * tenth)  # only the sample over (0.5 s, 0.6 s]
+    assert later[:2, 3] == pytest.approx([0.4 * np.cos(0.025), 0.4 * np.sin(0.025)])
+    mount = make_pose(1.5, 0.0, 1.8)
+    assert mount @ measured_motion(samples, 0, 20 * tenth, mount) @ invert(mount) == pytest.approx(arc)

@@ -79,18 +79,18 @@ def test_odom_run_errors_are_one_line(tmp_path, capsys):
 def test_eval_odom_end_to_end(tmp_path, capsys):
     result = tmp_path / "odom.json"
     assert main(["eval", "odom", "--scenario", "sparse_50", "--frames", "4", "--masks", "gt", "--methods", "points",
-                 "ssf", "kiss-icp", "--json", str(result), "--plot", str(tmp_path / "traj.png"),
+                 "ssf", "ssf+twist", "kiss-icp", "--json", str(result), "--plot", str(tmp_path / "traj.png"),
                  "--map-plot", str(tmp_path / "maps.png"), "--trail-every", "2",
                  "-p", "map.confirm:=2"]) == 0  # a 4-scan drive: voxels seen twice are in the map
     table = capsys.readouterr().out
     assert "RPE t RMSE" in table and "kiss-icp" in table
     document = json.loads(result.read_text())
     methods = document["scenarios"]["sparse_50"]["methods"]
-    assert set(methods) == {"points", "ssf", "kiss-icp"}
+    assert set(methods) == {"points", "ssf", "ssf+twist", "kiss-icp"}
     for figures in methods.values():
         assert {"rmse", "sse", "std"} <= set(figures["rpe_translation"]) and figures["ate"]["rmse"] >= 0
         assert 0.0 <= figures["left_behind_share"] <= figures["trail_share"] <= 1.0
-    assert methods["ssf"]["rpe_translation"]["rmse"] < 0.05
+    assert methods["ssf"]["rpe_translation"]["rmse"] < 0.05 and methods["ssf+twist"]["rpe_translation"]["rmse"] < 0.05
     assert document["config"]["odom"]["method"] == "ssf" and (tmp_path / "odom.config.yaml").is_file()
     assert (tmp_path / "traj.png").stat().st_size > 0 and (tmp_path / "maps.png").stat().st_size > 0
     assert main(["eval", "odom", "--scenario", "sparse_50", "--methods", "lidar"]) == 2

@@ -154,3 +154,33 @@ def test_commands_sent_between_scans_are_the_motion_prior():
         assert [command[1] for command in node.commands] == [1.0]  # the old stream's commands are forgotten
     finally:
         node.destroy_node()
+
+
+def test_measured_twists_between_scans_are_the_measured_motion():
+    """With twist_topic set, the node integrates the vehicle's stamped speed and yaw rate from the last scan to the
+    next (the LiDAR mounted 1.2 m ahead of base_link); bad, repeated and restarted measurements are handled."""
+    stamped = messages.msg_type("geometry_msgs/msg/TwistStamped")
+    twist = messages.msg_type("geometry_msgs/msg/Twist")
+    vector = messages.msg_type("geometry_msgs/msg/Vector3")
+
+    def measurement(stamp_ns: int, speed: float, yaw_rate: float):
+        return stamped(header=messages.header(stamp_ns, "base_link"),
+                       twist=twist(linear=vector(x=speed, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=yaw_rate)))
+
+    node = OdomNode(argv=["--ros-args", "-p", "mount:=[1.2, 0.0, 1.8, 0.0, 0.0, 0.0]", "-p", "mount_from_tf:=false",
+                          "-p", "twist_topic:=/vehicle/twist"])
+    try:
+        for k in range(1, 11):
+            node.on_twist(measurement(k * PERIOD_NS, 5.0, 0.2))
+        node.on_twist(measurement(10 * PERIOD_NS, 5.0, 0.2))  # the same sample again
+        node.on_twist(measurement(11 * PERIOD_NS, float("inf"), 0.0))
+        assert len(node.twists) == 10
+        assert node.measured_prior(10 * PERIOD_NS) is None  # no scan yet
+        node._last_stamp = 0
+        base = node.mount @ node.measured_prior(10 * PERIOD_NS) @ invert(node.mount)
+        assert np.arctan2(base[1, 0], base[0, 0]) == pytest.approx(0.2, abs=1e-9)
+        assert np.hypot(*base[:2, 3]) == pytest.approx(2 * 5.0 / 0.2 * np.sin(0.1), abs=0.01)  # the arc's chord
+        node.on_twist(measurement(PERIOD_NS, 1.0, 0.0))  # a restarted stream
+        assert list(node.twists) == [(PERIOD_NS, 1.0, 0.0)]
+    finally:
+        node.destroy_node()

@@ -92,14 +92,19 @@ def test_each_variant_on_a_static_street_with_a_moving_convoy(method):
         assert translation > (0.1 if method is OdomMethod.POINTS else 0.04)
 
 
+def queue_street() -> tuple[np.ndarray, np.ndarray]:
+    """The street's static points and a queue of six cars around the sensor."""
+    rng = np.random.default_rng(3)
+    world, moving = street(1, moved=False)
+    queue = np.vstack([faces(rng, (x, y, -1.8), (4.5, 1.9, 1.6), 300)
+                       for x, y in ((-9, -3.5), (-3, -3.5), (3, -3.5), (9, -3.5), (6, 3.5), (-6, 3.5))])
+    return world[~moving], queue
+
+
 def test_near_points_weigh_less_so_a_queue_moving_with_the_ego_does_not_hold_it_still():
     """Cars all around the ego moving with it, labelled static, and the flow's motion taken by them (standing still):
     registered alike, they keep the pose still; weighted by their range, the street beyond them gives the motion."""
-    rng = np.random.default_rng(3)
-    world, moving = street(1, moved=False)
-    static = world[~moving]
-    queue = np.vstack([faces(rng, (x, y, -1.8), (4.5, 1.9, 1.6), 300)
-                       for x, y in ((-9, -3.5), (-3, -3.5), (3, -3.5), (9, -3.5), (6, 3.5), (-6, 3.5))])
+    static, queue = queue_street()
     first = np.vstack([static, queue])
     target = PlaneTarget.build(first, estimate_normals(first, 8))
     second = np.vstack([transform_points(invert(EGO), static), queue])  # the queue keeps its place around the sensor
@@ -113,6 +118,39 @@ def test_near_points_weigh_less_so_a_queue_moving_with_the_ego_does_not_hold_it_
     assert pose_error(near.transform, EGO)[0] < 0.02
     off = make_odometry("ssf", OdomConfig(near_range=0.0))
     assert np.all(off.near_weights(second) == 1.0)
+
+
+def queue_drive(measured: bool) -> tuple[list, np.ndarray]:
+    """Two scans of a street with a queue of cars around the ego that moves with it, all labelled static, and a flow
+    that (fooled by the queue) says the ego stands still; with or without the vehicle's measured motion."""
+    static, queue = queue_street()
+    first = np.vstack([static, queue])
+    second = np.vstack([transform_points(invert(EGO), static), queue])
+    still, labels = np.zeros_like(first), np.zeros(len(first), np.float32)
+    odometry = make_odometry("ssf", OdomConfig(near_range=0.0))  # near weighting has a test of its own
+    steps = [odometry.step(OdomInput(0, first, still, labels)),
+             odometry.step(OdomInput(100_000_000, second, still, labels, measured_motion=EGO if measured else None))]
+    return steps, EGO
+
+
+def test_the_measured_motion_overrules_a_flow_fooled_by_traffic_moving_with_the_ego():
+    (_, fooled), truth = queue_drive(measured=False)
+    assert pose_error(fooled.pose, truth)[0] > 0.3 and fooled.predicted_by == "flow"  # held still by the queue
+    (_, second), truth = queue_drive(measured=True)
+    assert second.predicted_by == "measured"
+    translation, rotation = pose_error(second.pose, truth)
+    assert translation < 0.05 and rotation < 0.2
+
+
+def test_a_measured_motion_that_agrees_with_the_flow_leaves_the_flow_in_charge():
+    scan1, scan2, truth = convoy_scans()
+    odometry = make_odometry("ssf", OdomConfig(near_range=0.0))
+    odometry.step(scan1)
+    nearby = truth @ make_pose(0.02, 0.0, 0.0, 0.0)  # 2 cm off: a wheel-speed error
+    second = odometry.step(OdomInput(scan2.stamp_ns, scan2.points, measured_motion=nearby))
+    assert second.predicted_by == "flow" and pose_error(second.pose, truth)[0] < 0.02
+    with pytest.raises(DataError, match="measured motion"):
+        odometry.step(OdomInput(200_000_000, scan2.points, measured_motion=np.eye(3)))
 
 
 def test_ssf_map_holds_no_convoy_points_and_points_map_does():

@@ -1,6 +1,6 @@
 """Planar vehicle motion from velocity commands: where a vehicle that follows each command (forward speed, yaw rate)
 within its acceleration limits goes. The planner carries late odometry forward with it; the odometry takes it as the
-motion prior across skipped scans."""
+motion prior across skipped scans. And from the vehicle's own measurements (wheel speed, yaw rate), where it went."""
 
 from __future__ import annotations
 
@@ -57,6 +57,37 @@ def commanded_motion(commands: Sequence[tuple[int, float, float]], start_ns: int
     motion = yaw_matrix(end.yaw)
     motion[:2, 3] = end.x, end.y
     return motion if mount is None else invert(mount) @ motion @ mount
+
+
+def measured_motion(samples: Sequence[tuple[int, float, float]], start_ns: int, end_ns: int,
+                    mount: np.ndarray | None = None, max_age_s: float = 0.5) -> np.ndarray | None:
+    """How the vehicle moved from start_ns to end_ns by its measurements (stamp, forward speed, yaw rate; each
+    measured over the time since the one before it, the last one holding on to end_ns): the vehicle frame then <- the
+    vehicle frame now (4x4, planar), or of a frame `mount`ed on it; None when no sample comes after start_ns or the
+    newest is more than `max_age_s` older than end_ns (the sensor stopped)."""
+    if not samples or samples[-1][0] <= start_ns or end_ns - samples[-1][0] > max_age_s * 1e9:
+        return None
+    x = y = yaw = 0.0
+    t = start_ns
+    for stamp, speed, yaw_rate in samples:
+        if stamp <= start_ns:
+            continue
+        until = min(stamp, end_ns)
+        x, y, yaw = _arc(x, y, yaw, speed, yaw_rate, (until - t) * 1e-9)
+        t = until
+        if t >= end_ns:
+            break
+    if t < end_ns:
+        x, y, yaw = _arc(x, y, yaw, samples[-1][1], samples[-1][2], (end_ns - t) * 1e-9)
+    motion = yaw_matrix(yaw)
+    motion[:2, 3] = x, y
+    return motion if mount is None else invert(mount) @ motion @ mount
+
+
+def _arc(x: float, y: float, yaw: float, speed: float, yaw_rate: float, seconds: float) -> tuple[float, float, float]:
+    """A planar pose moved `seconds` at constant speed and yaw rate (along the chord of its arc)."""
+    middle = yaw + 0.5 * yaw_rate * seconds
+    return x + speed * np.cos(middle) * seconds, y + speed * np.sin(middle) * seconds, yaw + yaw_rate * seconds
 
 
 def forward_speed(motion: np.ndarray, seconds: float, mount: np.ndarray | None = None) -> float:

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from ssf_common.cli import CommandGroups
 
-ALL_METHODS = ("points", "flow", "ssf", "kiss-icp")
+ALL_METHODS = ("points", "flow", "ssf", "kiss-icp")  # the default rows
+KNOWN_METHODS = (*ALL_METHODS, "ssf+twist")  # and ssf with the vehicle's measured motion (wheel speed, gyro)
 DENSITIES = ("sparse_50", "urban_200", "dense_500", "crowd_1000")
 
 
@@ -48,7 +49,8 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--frames", type=int, default=300, help="scans per scenario (default 300: 30 s of driving)")
     evaluate.add_argument("--warmup", type=float, default=2.0, metavar="S", help="simulated seconds before the first scan")
     evaluate.add_argument("--methods", "--method", nargs="+", default=list(ALL_METHODS), metavar="M",
-                          help=f"default: {' '.join(ALL_METHODS)}")
+                          help=f"default: {' '.join(ALL_METHODS)}; also ssf+twist: ssf with the simulated vehicle's "
+                          "measured motion (wheel speed, yaw-rate gyro; the paper's '+ IMU' row)")
     evaluate.add_argument("--masks", choices=("seg", "gt", "noisy"), default="seg",
                           help="static mask: the segmentation (fusion loop), or ground truth (gt, noisy) stand-ins")
     evaluate.add_argument("--trail-every", type=int, default=10, help="sample the maps' trails every N scans")
@@ -93,9 +95,9 @@ def check_methods(methods: list[str]) -> None:
     """Every name must be a method or kiss-icp."""
     from ssf_common.errors import ConfigError
 
-    unknown = [name for name in methods if name not in ALL_METHODS]
+    unknown = [name for name in methods if name not in KNOWN_METHODS]
     if unknown:
-        raise ConfigError(f"unknown odometry method {unknown[0]!r}; choose from {', '.join(ALL_METHODS)}")
+        raise ConfigError(f"unknown odometry method {unknown[0]!r}; choose from {', '.join(KNOWN_METHODS)}")
 
 
 def perception_for(masks: str, seed: int):
@@ -181,7 +183,7 @@ def run_eval(args: argparse.Namespace) -> int:
             check_writable(path, what)
     config = odom_config(args)
     scenarios = [scenario_of(name, args.agents) for name in args.scenarios]
-    perception = perception_for(args.masks, args.seed) if {"flow", "ssf"} & set(args.methods) else None
+    perception = perception_for(args.masks, args.seed) if {"flow", "ssf", "ssf+twist"} & set(args.methods) else None
     results = {}
     for scenario in scenarios:
         title = f"{scenario.name}" if args.agents is None else f"{scenario.name}@{args.agents}"
@@ -254,7 +256,9 @@ def run_bench(args: argparse.Namespace) -> int:
         truths.append(scan.pose)
         inputs.append({"points": OdomInput(scan.stamp_ns, scan.points),
                        "flow": OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain),
-                       "ssf": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob)})
+                       "ssf": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob),
+                       "ssf+twist": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob,
+                                              measured_motion=scan.measured_motion)})
     figures = {}
     for name in args.methods:
         spent = []
@@ -265,7 +269,7 @@ def run_bench(args: argparse.Namespace) -> int:
                 kiss.step(points)
                 spent.append((time.perf_counter() - started) * 1e3)
         else:
-            odometry = make_odometry(name, config)
+            odometry = make_odometry("ssf" if name == "ssf+twist" else name, config)
             for frame in inputs:
                 started = time.perf_counter()
                 odometry.step(frame[name])

@@ -21,7 +21,8 @@ from ssf_eval.odom.trails import SweptPaths, left_behind
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 KISS_ICP = "kiss-icp"
-METHODS = ("points", "flow", "ssf")
+SSF_TWIST = "ssf+twist"  # ssf with the vehicle's measured motion (wheel speed, yaw-rate gyro): the paper's "+ IMU" row
+METHODS = ("points", "flow", "ssf", SSF_TWIST)
 
 
 class MaskSource(str, Enum):
@@ -145,7 +146,8 @@ class SequenceResult:
 def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perception | None, config: OdomConfig,
                  map_voxel: float, trail_every: int = 10, progress: Callable[[int], None] | None = None) -> SequenceResult:
     """Step every method through the scans; sample each map's trails every `trail_every` scans."""
-    odometries = {name: make_odometry(name, config) for name in methods if name != KISS_ICP}
+    odometries = {name: make_odometry("ssf" if name == SSF_TWIST else name, config) for name in methods
+                  if name != KISS_ICP}
     kiss = KissIcpBaseline() if KISS_ICP in methods else None
     result = SequenceResult(runs={name: MethodRun(name) for name in methods})
     paths = SweptPaths()
@@ -155,7 +157,7 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
         result.truth.append(scan.pose)
         result.stamps_s.append(scan.stamp_ns * 1e-9)
         paths.add(scan.agents)
-        perceived = perception(scan) if perception is not None and set(methods) & {"flow", "ssf"} else None
+        perceived = perception(scan) if perception is not None and set(methods) & {"flow", "ssf", SSF_TWIST} else None
         if perceived is not None:
             result.perception_ms.append(perceived.ms)
         for name, odometry in odometries.items():
@@ -164,6 +166,9 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
                 frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain)
             elif perceived is not None and name == "ssf":
                 frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob)
+            elif perceived is not None and name == SSF_TWIST:
+                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob,
+                                  measured_motion=scan.measured_motion)
             started = time.perf_counter()
             step = odometry.step(frame)
             result.runs[name].ms.append((time.perf_counter() - started) * 1e3)

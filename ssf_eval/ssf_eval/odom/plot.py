@@ -10,7 +10,8 @@ import numpy as np
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import invert
 
-COLOURS = {"truth": "black", "points": "tab:orange", "flow": "tab:blue", "ssf": "tab:green", "kiss-icp": "tab:red"}
+COLOURS = {"truth": "black", "points": "tab:orange", "flow": "tab:blue", "ssf": "tab:green", "kiss-icp": "tab:red",
+           "ssf+twist": "tab:purple"}
 
 
 def _save(figure, path: Path) -> Path:

@@ -1,5 +1,5 @@
-"""Scans of a simulated drive for odometry: whole scans in their sensor frame, true poses, which points move, and
-the agents around (for the map-trail figure), streamed frame by frame."""
+"""Scans of a simulated drive for odometry: whole scans in their sensor frame, true poses, which points move, the
+agents around (for the map-trail figure) and the vehicle's own measured motion, streamed frame by frame."""
 
 from __future__ import annotations
 
@@ -11,6 +11,9 @@ import numpy as np
 from sim_bridge.dataset.export import simulate, warmup_frames
 from sim_bridge.ros_messages import agent_obstacles
 from sim_bridge.scenario import Scenario, load_scenario
+from sim_bridge.simulator import Frame
+from ssf_common.geometry.kinematics import measured_motion
+from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
 
 NEAR_AGENTS = 90.0  # m: agents farther from the ego cannot reach its local map
@@ -28,6 +31,7 @@ class SimScan:
     instance: np.ndarray  # (N,) int32 agent id, 0 static
     pose: np.ndarray  # (4, 4) world <- sensor
     agents: Obstacles  # agents near the ego, world frame
+    measured_motion: np.ndarray | None = None  # (4, 4) last scan's sensor frame <- this one's, by the odometer
 
 
 def scenario_of(name: str, agents: int | None = None) -> Scenario:
@@ -35,14 +39,25 @@ def scenario_of(name: str, agents: int | None = None) -> Scenario:
     return load_scenario(name, {"agents.count": agents} if agents is not None else None)
 
 
+def odometer_motion(frame: Frame, dt: float) -> np.ndarray | None:
+    """The sensor's motion over the step that ended at `frame` (that step's sensor frame <- this one's) as the
+    vehicle's odometer measured it."""
+    if frame.measured is None:
+        return None
+    sample = [(frame.stamp_ns, frame.measured.speed, frame.measured.yaw_rate)]
+    return measured_motion(sample, frame.stamp_ns - int(round(dt * 1e9)), frame.stamp_ns,
+                           invert(frame.base_pose) @ frame.pose)
+
+
 def sim_scans(scenario: Scenario, seed: int, frames: int, warmup_s: float) -> Iterator[SimScan]:
     """`frames` consecutive scans after `warmup_s` simulated seconds, each with the next scan and its truth."""
     skip = warmup_frames(scenario, warmup_s)
+    dt = scenario.episode.dt
     previous = None
     for frame in simulate(scenario, seed, frames, skip):
         if previous is not None:
             near = np.linalg.norm(previous.agents.position[:, :2] - previous.pose[:2, 3], axis=1) < NEAR_AGENTS
             yield SimScan(previous.index - skip, previous.stamp_ns, previous.scan.points, frame.scan.points,
                           frame.flow.dynamic, previous.scan.instance, previous.pose,
-                          agent_obstacles(previous.agents.take(near), previous.stamp_ns))
+                          agent_obstacles(previous.agents.take(near), previous.stamp_ns), odometer_motion(previous, dt))
         previous = frame

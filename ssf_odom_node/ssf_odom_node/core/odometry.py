@@ -59,6 +59,10 @@ class OdomConfig(Section):
     prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
                                             "the constant-velocity prediction is checked: a search from that "
                                             "prediction runs too, and the map keeps whichever fits more points")
+    measured_gate: tuple[float, float] = Field((0.05, 0.01), description="with the vehicle's measured motion (wheel "
+                                               "speed, gyro), a flow motion farther than this (m, rad) from it "
+                                               "gives way to it: traffic that moves with the ego can fool the flow, "
+                                               "not the wheels")
     ssf_range: float = Field(35.0, gt=0.0, description="ssf maps static points within this range (m) only: the "
                              "segmentation sees moving objects only where the flow is estimated")
     target_range: float = Field(60.0, gt=0.0, description="ssf: static points beyond ssf_range and within this range "
@@ -83,7 +87,9 @@ class OdomInput:
     flow: np.ndarray | None = None  # (N, 3), None when no flow is known
     dynamic_prob: np.ndarray | None = None  # (N,), None when no segmentation is known
     motion_prior: np.ndarray | None = None  # (4, 4) last scan's sensor frame <- this scan's, as the commands sent in
-    # between (or wheel odometry) drove the vehicle; None when unknown
+    # between drove the vehicle; None when unknown
+    measured_motion: np.ndarray | None = None  # (4, 4) the same, as the vehicle's own sensors (wheel speed, yaw-rate
+    # gyro) measured it; None when it has none
 
 
 @dataclass(frozen=True)
@@ -97,7 +103,8 @@ class OdomStep:
     next_motion: np.ndarray | None  # (4, 4) this scan -> the next (scan-t coordinates of static points), from the flow
     inliers: int  # map points matched on the last refinement iteration
     rmse: float  # point-to-plane RMS residual (m)
-    predicted_by: str  # "flow", "velocity" (constant velocity), "prior" (the motion prior, across a gap) or "start"
+    predicted_by: str  # "flow", "velocity" (constant velocity), "prior" (the motion prior, across a gap), "measured"
+    # (the vehicle's measured motion) or "start"
     map_voxels: int
     registered_points: int = 0
     extras: dict = field(default_factory=dict)
@@ -130,7 +137,7 @@ class Odometry:
         registered, weights = self.registered_points(points, dynamic)
         # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ)
         alignment, source = self.refine(registered, weights, by_flow, by_velocity, self.periods(frame.stamp_ns),
-                                        self.prior_pose(frame))
+                                        self.prior_pose(frame), self.prior_pose(frame, measured=True))
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the motion to the next scan from the static points and their flow (weighted Kabsch)
@@ -226,22 +233,27 @@ class Odometry:
         per_scan = log_se3(invert(self.next_motion))
         return self.pose @ exp_se3(per_scan * (elapsed / self.config.scan_period)), by_velocity
 
-    def prior_pose(self, frame: OdomInput) -> np.ndarray | None:
-        """The new scan's pose by the motion prior, when one is given and a valid 4x4 rigid transform."""
-        prior = frame.motion_prior
+    def prior_pose(self, frame: OdomInput, measured: bool = False) -> np.ndarray | None:
+        """The new scan's pose by the motion prior (or by the measured motion), when one is given and a valid 4x4
+        rigid transform."""
+        prior = frame.measured_motion if measured else frame.motion_prior
         if prior is None or self.stamp_ns is None:
             return None
         prior = np.asarray(prior, dtype=np.float64)
         if prior.shape != (4, 4) or not np.isfinite(prior).all():
-            raise DataError(f"odometry: the motion prior must be a finite 4x4 transform, got shape {prior.shape}")
+            what = "measured motion" if measured else "motion prior"
+            raise DataError(f"odometry: the {what} must be a finite 4x4 transform, got shape {prior.shape}")
         return self.pose @ prior
 
-    def agree(self, by_flow: np.ndarray, by_velocity: np.ndarray, periods: float = 1.0) -> bool:
-        """Whether the flow's prediction lies within the prior gate of the constant-velocity one; over `periods` scan
-        periods (scans skipped by a busy graph) the two drift apart that many times more, and so does the gate."""
+    def agree(self, by_flow: np.ndarray, by_velocity: np.ndarray, periods: float = 1.0,
+              gate: tuple[float, float] | None = None) -> bool:
+        """Whether the flow's prediction lies within the prior gate (or `gate`: m, rad) of the constant-velocity one;
+        over `periods` scan periods (scans skipped by a busy graph) the two drift apart that many times more, and so
+        does the gate."""
+        distance, angle = self.config.prior_gate if gate is None else gate
         deviation = invert(by_velocity) @ by_flow
-        return bool(np.linalg.norm(deviation[:3, 3]) <= self.config.prior_gate[0] * periods
-                    and rotation_angle(deviation) <= self.config.prior_gate[1] * periods)
+        return bool(np.linalg.norm(deviation[:3, 3]) <= distance * periods
+                    and rotation_angle(deviation) <= angle * periods)
 
     def periods(self, stamp_ns: int) -> float:
         """Scan periods since the last scan (at least one)."""
@@ -304,15 +316,30 @@ class Odometry:
         return np.concatenate([points[chosen], ahead])
 
     def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
-               by_velocity: np.ndarray, periods: float = 1.0, by_prior: np.ndarray | None = None) -> tuple[Alignment, str]:
+               by_velocity: np.ndarray, periods: float = 1.0, by_prior: np.ndarray | None = None,
+               by_measured: np.ndarray | None = None) -> tuple[Alignment, str]:
         """Point-to-plane Gauss-Newton of the registered points against the map from the predictions, one scan period
-        after the last scan or across a gap."""
+        after the last scan or across a gap (where the measured motion, if any, is the prior: it beats commands)."""
         if len(self.map) == 0:
             return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
         if periods < GAP_PERIODS:
+            if by_measured is not None:
+                return self.refine_measured(points, weights, target, by_flow, by_measured, periods)
             return self.refine_next(points, weights, target, by_flow, by_velocity, periods)
-        return self.refine_across_gap(points, weights, target, by_flow, by_velocity, by_prior, periods)
+        return self.refine_across_gap(points, weights, target, by_flow, by_velocity,
+                                      by_prior if by_measured is None else by_measured, periods)
+
+    def refine_measured(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
+                        by_measured: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
+        """A few iterations from the flow's prediction where it agrees with the vehicle's measured motion (within
+        measured_gate), else from the measured motion: the wheels and the gyro do not move with the traffic."""
+        gates, kernel = self.config.refine_gates, self.config.kernel
+        if by_flow is not None and self.agree(by_flow, by_measured, periods, self.config.measured_gate):
+            return point_to_plane(points, weights, target, by_flow, gates, kernel), "flow"
+        if by_flow is not None:
+            self.rejected_flows += 1
+        return point_to_plane(points, weights, target, by_measured, gates, kernel), "measured"
 
     def refine_next(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
                     by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
