@@ -255,9 +255,21 @@ def test_a_long_gap_widens_the_heading_search(yaw_rate, found):
     assert (translation < 0.1 and rotation < 0.5) == found, (translation, rotation)
 
 
-def turn_across_a_long_gap(config: OdomConfig, prior_yaw: float | None) -> tuple[float, float, str]:
+def test_the_measured_motion_carries_a_turn_across_skipped_scans_without_a_heading_search():
+    """The 25 degree turn over seven skipped scans with no heading search at all: the measured motion (a gyro saw the
+    turn) starts the refinement where the truth is; without it the pose goes astray."""
+    config = OdomConfig(ssf_range=100.0, gap_headings=(), gap_yaw_rate=1.0)
+    lost = turn_across_a_long_gap(config, None)
+    assert lost[0] > 0.1 or lost[1] > 0.5
+    translation, rotation, source = turn_across_a_long_gap(config, 0.3, measured=True)
+    assert translation < 0.1 and rotation < 0.5 and source == "measured"
+
+
+def turn_across_a_long_gap(config: OdomConfig, prior_yaw: float | None,
+                           measured: bool = False) -> tuple[float, float, str]:
     """The 25 degree turn over seven skipped scans, the last scan with the true motion turned by `prior_yaw`
-    degrees as its prior (None: no prior): translation and rotation error at that scan, and what predicted it."""
+    degrees as its prior (None: no prior; `measured`: as the measured motion instead of the commands' prior):
+    translation and rotation error at that scan, and what predicted it."""
     odometry = make_odometry("ssf", config)
     world, moving = street(4, moved=False)
     world = world[~moving]
@@ -271,7 +283,8 @@ def turn_across_a_long_gap(config: OdomConfig, prior_yaw: float | None) -> tuple
         if index == 14 and prior_yaw is not None:
             prior = make_pose(0.0, 0.0, 0.0, yaw=np.radians(prior_yaw)) @ invert(poses[7]) @ poses[14]
         step = odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points,
-                                       np.zeros(len(points), np.float32), prior))
+                                       np.zeros(len(points), np.float32), None if measured else prior,
+                                       prior if measured else None))
     return *pose_error(step.pose, poses[14]), step.predicted_by
 
 

@@ -319,21 +319,22 @@ class Odometry:
                by_velocity: np.ndarray, periods: float = 1.0, by_prior: np.ndarray | None = None,
                by_measured: np.ndarray | None = None) -> tuple[Alignment, str]:
         """Point-to-plane Gauss-Newton of the registered points against the map from the predictions, one scan period
-        after the last scan or across a gap (where the measured motion, if any, is the prior: it beats commands)."""
+        after the last scan or across a gap; with the vehicle's measured motion, from that or the flow alone (a gyro
+        measures the turns a heading search looks for)."""
         if len(self.map) == 0:
             return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
+        if by_measured is not None:
+            return self.refine_measured(points, weights, target, by_flow, by_measured, periods)
         if periods < GAP_PERIODS:
-            if by_measured is not None:
-                return self.refine_measured(points, weights, target, by_flow, by_measured, periods)
             return self.refine_next(points, weights, target, by_flow, by_velocity, periods)
-        return self.refine_across_gap(points, weights, target, by_flow, by_velocity,
-                                      by_prior if by_measured is None else by_measured, periods)
+        return self.refine_across_gap(points, weights, target, by_flow, by_velocity, by_prior, periods)
 
     def refine_measured(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
                         by_measured: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
         """A few iterations from the flow's prediction where it agrees with the vehicle's measured motion (within
-        measured_gate), else from the measured motion: the wheels and the gyro do not move with the traffic."""
+        measured_gate, per scan period), else from the measured motion: the wheels and the gyro do not move with the
+        traffic, and across skipped scans they saw every turn."""
         gates, kernel = self.config.refine_gates, self.config.kernel
         if by_flow is not None and self.agree(by_flow, by_measured, periods, self.config.measured_gate):
             return point_to_plane(points, weights, target, by_flow, gates, kernel), "flow"
