@@ -93,6 +93,7 @@ class OdomNode(Node):
         self.flows: collections.OrderedDict[int, Any] = collections.OrderedDict()
         self.commands: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=COMMANDS_KEPT)
         self.twists: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=TWISTS_KEPT)
+        self.said_no_twist = False
         self.commands_lock = threading.Lock()  # the worker reads what the subscriptions append
         self.speed = 0.0  # base_link's forward speed at the last scan (m/s): where the motion prior starts from
         self.odom_pub = self.create_publisher("nav_msgs/msg/Odometry", topics.ODOM, QOS_DEFAULT)
@@ -191,7 +192,14 @@ class OdomNode(Node):
             return None
         with self.commands_lock:
             twists = list(self.twists)
-        return measured_motion(twists, self._last_stamp, stamp_ns, self.mount)
+        motion = measured_motion(twists, self._last_stamp, stamp_ns, self.mount)
+        if motion is None and self.wiring.twist_topic and not self.said_no_twist:
+            newest = (f"the newest measurement is {(twists[-1][0] - stamp_ns) * 1e-9:+.1f} s from it (stopped, or "
+                      "stamped by another clock)") if twists else "none has come"
+            self.get_logger().warning(f"no measured motion on {self.wiring.twist_topic} for the scan at {stamp_ns}: "
+                                      f"{newest}; the flow alone decides (said once)")
+            self.said_no_twist = True
+        return motion
 
     def motion_prior(self, stamp_ns: int) -> np.ndarray | None:
         """The sensor's motion from the last scan to this one (last scan's sensor frame <- this one's) as the

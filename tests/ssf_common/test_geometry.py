@@ -294,6 +294,7 @@ def test_measured_motion_integrates_each_sample_over_the_time_before_it():
     held = measured_motion(samples[:19], 0, 20 * tenth)  # one sample late: the last one holds
     assert held == pytest.approx(arc, abs=1e-9)
     assert measured_motion(samples, 20 * tenth, 21 * tenth) is None  # nothing measured after the start
+    assert measured_motion(samples, -30 * tenth, -20 * tenth) is None  # measured a second after: another clock
     later = measured_motion(samples, 5 * tenth, 6 * tenth)  # only the sample over (0.5 s, 0.6 s]
     assert later[:2, 3] == pytest.approx([0.4 * np.cos(0.025), 0.4 * np.sin(0.025)])
     mount = make_pose(1.5, 0.0, 1.8)

@@ -182,5 +182,7 @@ def test_measured_twists_between_scans_are_the_measured_motion():
         assert np.hypot(*base[:2, 3]) == pytest.approx(2 * 5.0 / 0.2 * np.sin(0.1), abs=0.01)  # the arc's chord
         node.on_twist(measurement(PERIOD_NS, 1.0, 0.0))  # a restarted stream
         assert list(node.twists) == [(PERIOD_NS, 1.0, 0.0)]
+        node._last_stamp = 100 * PERIOD_NS  # measurements ten seconds before the scans: stopped, or another clock
+        assert node.measured_prior(101 * PERIOD_NS) is None and node.said_no_twist
     finally:
         node.destroy_node()

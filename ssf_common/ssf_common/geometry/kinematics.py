@@ -63,9 +63,13 @@ def measured_motion(samples: Sequence[tuple[int, float, float]], start_ns: int, 
                     mount: np.ndarray | None = None, max_age_s: float = 0.5) -> np.ndarray | None:
     """How the vehicle moved from start_ns to end_ns by its measurements (stamp, forward speed, yaw rate; each
     measured over the time since the one before it, the last one holding on to end_ns): the vehicle frame then <- the
-    vehicle frame now (4x4, planar), or of a frame `mount`ed on it; None when no sample comes after start_ns or the
-    newest is more than `max_age_s` older than end_ns (the sensor stopped)."""
-    if not samples or samples[-1][0] <= start_ns or end_ns - samples[-1][0] > max_age_s * 1e9:
+    vehicle frame now (4x4, planar), or of a frame `mount`ed on it; None when no sample comes after start_ns, the
+    newest is more than `max_age_s` older than end_ns (the sensor stopped), or the first after start_ns comes more
+    than that after end_ns (another clock)."""
+    if not samples or samples[-1][0] <= start_ns:
+        return None
+    first = next(stamp for stamp, _, _ in samples if stamp > start_ns)
+    if end_ns - samples[-1][0] > max_age_s * 1e9 or first - end_ns > max_age_s * 1e9:
         return None
     x = y = yaw = 0.0
     t = start_ns
