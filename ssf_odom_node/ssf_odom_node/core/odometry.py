@@ -1,6 +1,7 @@
 """Odometry from semantic scene flow: the paper's static points and their flow give the motion between scans, a few
 point-to-plane iterations against a local map of static points refine it, and the motions chain into a pose with a
-covariance. The ablation variants (whole scans only, all points' flow, static points' flow) are one switch."""
+covariance. The ablation variants (whole scans only, all points' flow, static points' flow) are one switch; the
+vehicle's own measured motion (wheel speed, gyro), where given, checks the flow's motion on every scan."""
 
 from __future__ import annotations
 
