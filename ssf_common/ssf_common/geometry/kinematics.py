@@ -39,9 +39,7 @@ def driven(start: PlanarState, commands: Sequence[tuple[int, float, float]], sta
         while t < until:
             dt = min(step_s, (until - t) * 1e-9)
             speed += float(np.clip(linear - speed, -max_decel * dt, max_accel * dt))
-            middle = yaw + 0.5 * angular * dt  # the chord of the step's arc
-            x, y = x + speed * np.cos(middle) * dt, y + speed * np.sin(middle) * dt
-            yaw += angular * dt
+            x, y, yaw = _arc(x, y, yaw, speed, angular, dt)
             t += int(round(dt * 1e9))
     return PlanarState(float(x), float(y), float(np.arctan2(np.sin(yaw), np.cos(yaw))), float(speed))
 
@@ -54,9 +52,7 @@ def commanded_motion(commands: Sequence[tuple[int, float, float]], start_ns: int
     if not commands or commands[0][0] > start_ns:
         return None
     end = driven(PlanarState(0.0, 0.0, 0.0, speed), commands, start_ns, end_ns, max_accel, max_decel)
-    motion = yaw_matrix(end.yaw)
-    motion[:2, 3] = end.x, end.y
-    return motion if mount is None else invert(mount) @ motion @ mount
+    return planar_motion(end.x, end.y, end.yaw, mount)
 
 
 def measured_motion(samples: Sequence[tuple[int, float, float]], start_ns: int, end_ns: int,
@@ -83,6 +79,11 @@ def measured_motion(samples: Sequence[tuple[int, float, float]], start_ns: int, 
             break
     if t < end_ns:
         x, y, yaw = _arc(x, y, yaw, samples[-1][1], samples[-1][2], (end_ns - t) * 1e-9)
+    return planar_motion(x, y, yaw, mount)
+
+
+def planar_motion(x: float, y: float, yaw: float, mount: np.ndarray | None = None) -> np.ndarray:
+    """The vehicle frame then <- the vehicle frame now (4x4) of a planar move, or of a frame `mount`ed on it."""
     motion = yaw_matrix(yaw)
     motion[:2, 3] = x, y
     return motion if mount is None else invert(mount) @ motion @ mount
