@@ -52,6 +52,11 @@ class OdomNodeConfig(Section):
     max_accel: float = Field(3.0, gt=0.0, description="the vehicle follows the commanded speed within this "
                              "acceleration (m/s^2) ...")
     max_decel: float = Field(6.0, gt=0.0, description="... and this deceleration (m/s^2, positive)")
+    pose_at: str = Field("next_scan", description="next_scan: /odom and /tf give the pose of the scan the flow "
+                         "reaches (the newest scan: the scan before it, refined on the map, moved on by the static "
+                         "flow's motion), stamped one scan period after the flow, as soon as the pair's flow is known; "
+                         "scan: the refined pose of the scan the flow starts from (a scan period older). /ssf/path "
+                         "always holds the refined poses")
     map_period_s: float = Field(1.0, gt=0.0, description="how often /ssf/map is published (s)")
     path_length: int = Field(5000, ge=1, description="poses kept on /ssf/path")
     report_period_s: float = Field(5.0, gt=0.0)
@@ -86,6 +91,8 @@ class OdomNode(Node):
         self.wiring = self.declare_config(OdomNodeConfig)
         if self.wiring.input not in ("semantic_flow", "flow_mask"):
             raise ConfigError(f"parameter input: '{self.wiring.input}' is not semantic_flow or flow_mask")
+        if self.wiring.pose_at not in ("next_scan", "scan"):
+            raise ConfigError(f"parameter pose_at: '{self.wiring.pose_at}' is not next_scan or scan")
         self.odometry = make_odometry(config=self.config)
         self.mount = mount_matrix(self.wiring.mount)
         self.sensor_frame = ""
@@ -105,6 +112,8 @@ class OdomNode(Node):
         self.stats = StageStats(self.get_name())
         advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
         self._last_stamp: int | None = None
+        self.period_ns: int | None = None  # the shortest time between two scans seen: the sensor's period
+        self._published_ns: int | None = None  # the stamp of the last /odom
         self.sequence = StampSequence()
         self.create_timer(self.wiring.map_period_s, self._publish_map)
         self.create_timer(self.wiring.report_period_s, self._report)
@@ -222,7 +231,7 @@ class OdomNode(Node):
             self.get_logger().info("stamps jumped back: the stream restarted; odometry, path and map start again")
             self.odometry = make_odometry(config=self.config)
             self.path.clear()
-            self._last_stamp = None
+            self._last_stamp = self._published_ns = None
         if self._last_stamp is not None and frame.stamp_ns <= self._last_stamp:
             if frame.stamp_ns < self._last_stamp:  # the same scan again (a later fusion answer) is simply skipped
                 self.get_logger().warning(f"stamp {frame.stamp_ns} is older than the last scan's; dropped")
@@ -232,16 +241,31 @@ class OdomNode(Node):
                                                       measured_motion=self.measured_prior(frame.stamp_ns)))
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stats.record(self._compute_ms[-1], "steps")
+        if self._last_stamp is not None:
+            gap = frame.stamp_ns - self._last_stamp
+            self.period_ns = gap if self.period_ns is None else min(self.period_ns, gap)
         self._last_stamp = frame.stamp_ns
         estimate = to_base(step, self.mount, self.wiring.odom_frame, self.wiring.base_frame)
         self.speed = float(estimate.twist[0]) if step.next_motion is None else forward_speed(
             invert(step.next_motion), self.config.scan_period, self.mount)  # the flow's: the speed at the scan itself
-        self.odom_pub.publish(odometry_to_msg(estimate))
-        self.tf_pub.publish(odometry_transform_msg(estimate))
+        newest = self.newest(estimate, step)
+        if self._published_ns is None or newest.stamp_ns > self._published_ns:  # not again: the period was learnt
+            self._published_ns = newest.stamp_ns  # meanwhile (the first two scans answered were not consecutive)
+            self.odom_pub.publish(odometry_to_msg(newest))
+            self.tf_pub.publish(odometry_transform_msg(newest))
         self.path.append(messages.msg_type("geometry_msgs/msg/PoseStamped")(
             header=messages.header(step.stamp_ns, self.wiring.odom_frame), pose=pose_msgs.pose_msg(estimate.pose)))
         self.path_pub.publish(messages.msg_type("nav_msgs/msg/Path")(
             header=messages.header(step.stamp_ns, self.wiring.odom_frame), poses=list(self.path)))
+
+    def newest(self, estimate: OdometryEstimate, step: OdomStep) -> OdometryEstimate:
+        """What /odom says: with pose_at next_scan, the scan's refined pose moved on by its static flow's motion to the
+        scan the flow reaches, one sensor period later (the shortest time between two scans so far); the scan's own
+        before two scans told the period, without a flow, or with pose_at scan."""
+        if self.wiring.pose_at != "next_scan" or step.next_motion is None or self.period_ns is None:
+            return estimate
+        ahead = self.mount @ invert(step.next_motion) @ invert(self.mount)  # base_link: this scan <- the next
+        return dataclasses.replace(estimate, stamp_ns=step.stamp_ns + self.period_ns, pose=estimate.pose @ ahead)
 
     def _publish_map(self) -> None:
         """The static map (odom frame) at a low rate."""

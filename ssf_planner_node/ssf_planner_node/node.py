@@ -194,8 +194,9 @@ class PlannerNode(Node):
         obstacles = self.obstacles
         if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
             obstacles = obstacles.transformed(self.anchor, route_frame)
-        # perception answers before odometry (which waits for the next scan's flow): obstacles newer than the odometry
-        # are placed by it carried forward; from before a restart they lie ahead of the clock (without a clock: more
+        # obstacles are placed by the odometry at their stamp, or between the two around it (the odometry node's
+        # default gives the pose of the scan after theirs); obstacles newer than the odometry (a node publishing the
+        # pose of their own scan answers after them) are placed by it carried forward; from before a restart they lie ahead of the clock (without a clock: more
         # than the compensated latency ahead of the odometry) and are dropped. Planning again while odometry is late,
         # the picture ages with the clock too: older than the latency the planner compensates it is stale (when stamps
         # are on the clock: a bag replayed without /clock is not), and so is one older than the odometry by

@@ -15,6 +15,7 @@ from ssf_common.geometry.se3 import invert, make_pose, transform_points
 from ssf_common.middleware import Node
 from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
 from ssf_common.records import Segmentation, SemanticFlow
+from ssf_odom_node.core.odometry import OdomInput
 from ssf_odom_node.node import OdomNode
 from support import wait_until
 
@@ -85,14 +86,17 @@ def test_node_publishes_odometry_tf_path_and_map_from_replayed_scans(graph, capf
         assert wait_until(lambda: len(received["odom"]) == index + 1)
     odometry = odometry_from_msg(received["odom"][-1])
     assert (odometry.frame_id, odometry.child_frame_id) == ("odom", "base_link")
-    assert odometry.stamp_ns == 3 * PERIOD_NS
-    np.testing.assert_allclose(odometry.position, [3 * STEP, 0.0, 0.0], atol=0.03)  # the convoy does not pull it
+    # /odom is the newest scan's pose: scan 3's flow reaches scan 4, which its static flow's motion places
+    assert odometry.stamp_ns == 4 * PERIOD_NS
+    np.testing.assert_allclose(odometry.position, [4 * STEP, 0.0, 0.0], atol=0.03)  # the convoy does not pull it
     assert odometry.twist[0] == pytest.approx(STEP / 0.1, abs=0.3)
     assert np.linalg.eigvalsh(odometry.pose_covariance).min() > 0
     transform = received["tf"][-1].transforms[0]
     assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
-    assert transform.transform.translation.x == pytest.approx(3 * STEP, abs=0.03)
-    assert len(received["path"][-1].poses) == 4
+    assert transform.transform.translation.x == pytest.approx(4 * STEP, abs=0.03)
+    path = received["path"][-1]  # the refined poses, each at its own scan
+    assert len(path.poses) == 4 and messages.stamp_ns(path.poses[-1].header.stamp) == 3 * PERIOD_NS
+    assert path.poses[-1].pose.position.x == pytest.approx(3 * STEP, abs=0.03)
     assert wait_until(lambda: len(received["map"]) > 0)
     map_points = cloud_to_array(received["map"][-1])
     assert 0 < len(map_points) <= node.config.map.max_voxels
@@ -107,8 +111,8 @@ def test_node_publishes_odometry_tf_path_and_map_from_replayed_scans(graph, capf
     publisher.publish(semantic_flow_to_cloud(semantic_flow(5)))  # scan 4 never arrives
     assert wait_until(lambda: len(received["odom"]) == 5)
     after_gap = odometry_from_msg(received["odom"][-1])
-    assert after_gap.stamp_ns == 5 * PERIOD_NS
-    np.testing.assert_allclose(after_gap.position, [5 * STEP, 0.0, 0.0], atol=0.05)
+    assert after_gap.stamp_ns == 6 * PERIOD_NS
+    np.testing.assert_allclose(after_gap.position, [6 * STEP, 0.0, 0.0], atol=0.05)
     assert "dropped a message on /ssf/semantic_flow" in capfd.readouterr().err
 
 
@@ -118,15 +122,36 @@ def test_a_restarted_stream_starts_the_odometry_again(graph):
     for index in range(3):  # a first drive, stamped 2.0 s onwards
         publisher.publish(semantic_flow_to_cloud(replace(semantic_flow(index), stamp_ns=(20 + index) * PERIOD_NS)))
         assert wait_until(lambda: len(received["odom"]) == index + 1)
-    assert odometry_from_msg(received["odom"][-1]).position[0] == pytest.approx(2 * STEP, abs=0.03)
+    assert odometry_from_msg(received["odom"][-1]).position[0] == pytest.approx(3 * STEP, abs=0.03)
     for index in range(2):  # the drive starts again at stamp zero
         publisher.publish(semantic_flow_to_cloud(semantic_flow(index)))
         assert wait_until(lambda: len(received["odom"]) == 4 + index)
     restarted = odometry_from_msg(received["odom"][-1])
-    assert restarted.stamp_ns == PERIOD_NS
-    np.testing.assert_allclose(restarted.position, [STEP, 0.0, 0.0], atol=0.03)
+    assert restarted.stamp_ns == 2 * PERIOD_NS
+    np.testing.assert_allclose(restarted.position, [2 * STEP, 0.0, 0.0], atol=0.03)
     assert len(received["path"][-1].poses) == 2
     assert node.sequence.restarts == 1
+
+
+@pytest.mark.parametrize("pose_at", ["next_scan", "scan"])
+def test_odom_is_the_newest_scans_pose_with_stamps_that_never_repeat(pose_at):
+    """next_scan: each /odom is the pose of the scan the flow reaches, one learnt sensor period after the flow's scan
+    (the first scan's own pose before a period is known; a stamp already published is not published again when the
+    period is learnt late); scan: the refined pose of the flow's own scan."""
+    node = OdomNode(argv=["--ros-args", "-p", "report_period_s:=60.0", "-p", "map.confirm:=2", "-p", f"pose_at:={pose_at}",
+                          "-p", "mount:=[0.0, 0.0, 1.8, 0.0, 0.0, 0.0]"])
+    sent = []
+    node.odom_pub.publish = sent.append
+    try:
+        for index in (0, 2, 3, 4):  # the first two scans answered were not consecutive: the period is learnt late
+            flow = semantic_flow(index)
+            node._step("scan", OdomInput(flow.stamp_ns, flow.points, flow.flow, flow.segmentation.dynamic_prob))
+        stamps = [odometry_from_msg(msg).stamp_ns // PERIOD_NS for msg in sent]
+        assert stamps == ([0, 4, 5] if pose_at == "next_scan" else [0, 2, 3, 4])
+        assert odometry_from_msg(sent[-1]).position[0] == pytest.approx(stamps[-1] * STEP, abs=0.05)
+        assert node.period_ns == PERIOD_NS
+    finally:
+        node.destroy_node()
 
 
 def test_commands_sent_between_scans_are_the_motion_prior():

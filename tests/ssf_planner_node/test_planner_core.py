@@ -220,3 +220,21 @@ def test_latency_compensation_carries_the_state_forward_by_the_commands_sent():
     assert moving.speed == pytest.approx(3.0) and moving.x == pytest.approx(1.5, abs=0.05)
     assert carried_forward(start, [], start.stamp_ns - 1, 3.0, 6.0) == start  # nothing to carry into the past
 
+
+
+def test_pose_history_interpolates_across_skipped_scans():
+    """Obstacles of a scan whose odometry was never published (the odometry answered the scans around it) are placed
+    by the pose between its neighbours'; beyond the history, or across a long silence, there is none."""
+    from ssf_common.geometry.se3 import make_pose, yaw_of
+    from ssf_planner_node.core.frames import PoseHistory
+
+    poses = PoseHistory()
+    poses.add(100_000_000, make_pose(1.0, 0.0, 0.0, yaw=0.0))
+    poses.add(400_000_000, make_pose(4.0, 3.0, 0.0, yaw=0.3))
+    assert poses.at(130_000_000)[0, 3] == 1.0  # within the tolerance: the pose itself
+    between = poses.at(200_000_000)
+    assert between[:3, 3] == pytest.approx([2.0, 1.0, 0.0]) and yaw_of(between) == pytest.approx(0.1)
+    assert np.allclose(between[:3, :3] @ between[:3, :3].T, np.eye(3))
+    assert poses.at(600_000_000) is None and poses.at(0) is None
+    poses.add(2_000_000_000, make_pose(20.0, 3.0, 0.0))
+    assert poses.at(1_000_000_000) is None  # 1.6 s without odometry: nothing to bridge

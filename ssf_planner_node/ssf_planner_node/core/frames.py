@@ -7,6 +7,7 @@ import bisect
 from collections import deque
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from ssf_common.geometry.kinematics import PlanarState, driven
 from ssf_common.geometry.se3 import yaw_of
@@ -52,14 +53,30 @@ class PoseHistory:
         self._stamps.append(int(stamp_ns))
         self._poses.append(np.asarray(pose, dtype=np.float64))
 
-    def at(self, stamp_ns: int, tolerance_ns: int = 60_000_000) -> np.ndarray | None:
-        """The pose nearest to stamp_ns, if one lies within the tolerance."""
+    def at(self, stamp_ns: int, tolerance_ns: int = 60_000_000, bridge_ns: int = 1_000_000_000) -> np.ndarray | None:
+        """The pose nearest to stamp_ns if one lies within the tolerance, else the pose interpolated between the two
+        around it (at most `bridge_ns` apart: scans the odometry skipped), else None."""
         if not self._stamps:
             return None
         stamps = list(self._stamps)
         index = bisect.bisect_left(stamps, stamp_ns)
         nearest = min((i for i in (index - 1, index) if 0 <= i < len(stamps)), key=lambda i: abs(stamps[i] - stamp_ns))
-        return self._poses[nearest] if abs(stamps[nearest] - stamp_ns) <= tolerance_ns else None
+        if abs(stamps[nearest] - stamp_ns) <= tolerance_ns:
+            return self._poses[nearest]
+        if 0 < index < len(stamps) and stamps[index] - stamps[index - 1] <= bridge_ns:
+            share = (stamp_ns - stamps[index - 1]) / (stamps[index] - stamps[index - 1])
+            return interpolated(self._poses[index - 1], self._poses[index], share)
+        return None
+
+
+def interpolated(before: np.ndarray, after: np.ndarray, share: float) -> np.ndarray:
+    """The pose `share` (0..1) of the way from `before` to `after`: translation linearly, rotation along the shortest
+    arc."""
+    pose = np.eye(4)
+    turn = Rotation.from_matrix(before[:3, :3].T @ after[:3, :3]).as_rotvec()
+    pose[:3, :3] = before[:3, :3] @ Rotation.from_rotvec(share * turn).as_matrix()
+    pose[:3, 3] = before[:3, 3] + share * (after[:3, 3] - before[:3, 3])
+    return pose
 
 
 def obstacles_in_route_frame(obstacles: Obstacles, route_frame: str, base_pose: np.ndarray | None,

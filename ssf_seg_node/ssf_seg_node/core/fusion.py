@@ -202,7 +202,7 @@ class _Scan:
     started_s: float
     flows: dict[int, np.ndarray] = field(default_factory=dict)
     masks: dict[int, MotionMask] = field(default_factory=dict)  # mask computed from the flow of iteration i
-    prior: np.ndarray | None = None  # the previous scan's segmentation carried onto this one
+    follows: _Finished | None = None  # the finished scan right before this one, whose segmentation is its prior
     hinted_s: float | None = None  # when the last mask hint went out
 
 
@@ -245,7 +245,7 @@ class DistributedLoop:
             if self.scan is not None:
                 done += self._finish_best("superseded")
             self.scan = _Scan(flow.stamp_ns, flow.frame_id, np.asarray(flow.points), now_s)
-            self.scan.prior = self._prior(self.scan)
+            self.scan.follows = self._previous(self.scan)
         if len(flow.points) != len(self.scan.points):
             return done
         self.scan.flows[flow.iteration] = np.asarray(flow.flow, np.float32)
@@ -275,7 +275,8 @@ class DistributedLoop:
         if self.round_trip_s is not None and now_s - scan.started_s + self.round_trip_s > self.timeout_s:
             return self._finish(i, status, "deadline")  # another iteration would end after the timeout: answer now
         scan.hinted_s = now_s
-        hint = mask.dynamic_prob if scan.prior is None or i > 0 else np.maximum(mask.dynamic_prob, scan.prior)
+        prior = self._prior(scan) if i == 0 else None  # carried only when a hint needs it: most scans end at i = 0
+        hint = mask.dynamic_prob if prior is None else np.maximum(mask.dynamic_prob, prior)
         return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, hint, mask.instance, i + 1), status)
 
     def on_timer(self, now_s: float) -> list[Finish]:
@@ -284,16 +285,21 @@ class DistributedLoop:
             return self._finish_best("timeout")
         return []
 
-    def _prior(self, scan: _Scan) -> np.ndarray | None:
-        """The last finished scan's segmentation carried onto this scan, if that scan came right before it (its flow
-        points into this scan's frame only then)."""
+    def _previous(self, scan: _Scan) -> _Finished | None:
+        """The last finished scan, if it came right before this one (its flow points into this scan's frame only
+        then)."""
         last = self.last
         if last is None or self.config.prior_radius <= 0 or scan.stamp_ns <= last.stamp_ns:
             return None
         gap = scan.stamp_ns - last.stamp_ns
         self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
-        if gap > 1.5 * self.gap_ns:
-            return None  # a scan was skipped in between
+        return None if gap > 1.5 * self.gap_ns else last  # else a scan was skipped in between
+
+    def _prior(self, scan: _Scan) -> np.ndarray | None:
+        """The segmentation of the scan right before this one carried onto it by its flow (None without one)."""
+        last = scan.follows
+        if last is None:
+            return None
         return carry_mask(last.points, last.flow, last.dynamic_prob, scan.points, self.config.prior_radius)
 
     def _status(self, iteration: int, total: float, flow: float, mask: float, converged: bool, seg: MotionMask) -> LoopStatus:
