@@ -76,6 +76,10 @@ class AgentsConfig(Section):
     keep_clear_of_start: float = Field(25.0, ge=0.0, le=500.0)
     lane_speeds: list[SpeedRange] = Field(default_factory=list, max_length=4, description="preferred speed range of "
                                           "the vehicles in each lane (0 = innermost); lanes not listed use vehicle_speed")
+    ego_yield: float = Field(1.0, ge=0.0, le=1.0, description="share of the excess closing speed an agent takes "
+                             "against the ego: 1 all of it (the ego never has to give way), 0.5 half (as between "
+                             "agents: reciprocal), 0 none (agents keep their way and the ego must give way); agents "
+                             "never step into the ego whatever the share")
     crossing_share: float = Field(0.25, ge=0.0, le=1.0, description="share of pedestrians whose walk crosses the road")
 
     @model_validator(mode="after")

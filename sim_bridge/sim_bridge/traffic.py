@@ -4,8 +4,8 @@ Each agent walks a closed loop in road (Frenet) coordinates toward a carrot poin
 keep their lane and follow the vehicle ahead with the intelligent driver model, stopping before busy
 crosswalks. Then a vectorised ORCA-like step over disc covers of the footprints: every pair of discs that
 would close its gap faster than gap / horizon shares the excess closing speed (by how directly each
-approaches; agents take all of it against the ego, which does not cooperate), people sidestepping to
-their right, everyone kept inside their band of the road. A final hard check undoes the step of any
+approaches; against the ego, which does not cooperate, agents take `ego_yield` of it: all by default), people
+sidestepping to their right, everyone kept inside their band of the road. A final hard check undoes the step of any
 agent whose new disc cover would overlap another agent or the ego, so agents never overlap.
 """
 
@@ -283,7 +283,7 @@ class Traffic:
     def _avoid(
         self, velocity: np.ndarray, ego_discs: np.ndarray, ego_radii: np.ndarray, ego_velocity: np.ndarray, dt: float
     ) -> np.ndarray:
-        """Share excess closing speeds between disc pairs (ego: agents take all of it)."""
+        """Share excess closing speeds between disc pairs (against the ego, agents take `ego_yield` of it)."""
         centres = np.concatenate([self.cover.centres(self.position, self.yaw), ego_discs])
         owner = np.concatenate([self.cover.owner, np.full(len(ego_discs), -1)])
         radius = np.concatenate([self.cover.radius, ego_radii])
@@ -310,7 +310,7 @@ class Traffic:
         )
         gap = distance - radius[a] - radius[b] - CLEARANCE_MARGIN
         allowed = np.maximum(gap, 0.0) / self.cfg.horizon
-        share_a = np.where(ego_pair, 1.0, (approach_a + 1e-3) / (approach_a + approach_b + 2e-3))
+        share_a = np.where(ego_pair, self.cfg.ego_yield, (approach_a + 1e-3) / (approach_a + approach_b + 2e-3))
         share_a[self._pedestrian_not_ahead(oa, ob, vehicle)] = 0.0
         other = ~ego_pair
         receiver = np.concatenate([oa, ob[other]])

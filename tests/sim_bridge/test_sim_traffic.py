@@ -85,3 +85,30 @@ def test_same_seed_same_traffic_bit_for_bit(world_200):
     assert np.array_equal(one[-1].position, two[-1].position)
     assert np.array_equal(one[-1].yaw, two[-1].yaw)
     assert not np.array_equal(one[-1].position, other[-1].position)
+
+
+def speed_towards_an_oncoming_ego(world_200, share: float, ego_near: bool) -> tuple[float, float]:
+    """A lone walker's speed along its way after one step with the ego driving at it from 3.5 m ahead (or far away),
+    with agents taking `share` of the avoidance against the ego; and its speed before."""
+    scenario, world = world_200
+    config = scenario.agents.model_copy(update={"ego_yield": share, "count": 1, "vehicle_fraction": 0.0,
+                                                "keep_clear_of_start": 0.0})
+    far = EgoFootprint(np.array([1e4, 1e4]), 0.0, 4.69, 1.85, np.zeros(2))
+    traffic = Traffic(world, config, np.random.default_rng(5), far.centre)
+    for _ in range(5):  # under way
+        traffic.step(0.1, far)
+    walker = traffic.states()
+    way = walker.velocity[0] / np.linalg.norm(walker.velocity[0])
+    ego = EgoFootprint(walker.position[0, :2] + 3.5 * way, float(np.arctan2(way[1], way[0])), 4.69, 1.85, -3.0 * way)
+    traffic.step(0.1, ego if ego_near else far)
+    return float(traffic.states().velocity[0] @ way), float(np.linalg.norm(walker.velocity[0]))
+
+
+def test_agents_give_way_to_the_ego_by_their_share(world_200):
+    """ego_yield 1 (the default): a walker the ego drives at takes all of the avoidance and backs off; 0: it keeps its
+    way as if the ego were not there (the ego must give way)."""
+    yielding, speed = speed_towards_an_oncoming_ego(world_200, 1.0, ego_near=True)
+    assert yielding < 0.0 < speed
+    keeping, _ = speed_towards_an_oncoming_ego(world_200, 0.0, ego_near=True)
+    unbothered, _ = speed_towards_an_oncoming_ego(world_200, 0.0, ego_near=False)
+    assert keeping == pytest.approx(unbothered) == pytest.approx(speed)

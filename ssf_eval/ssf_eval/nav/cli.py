@@ -54,6 +54,9 @@ def register(groups: CommandGroups) -> None:
                      help="perception answers one scan in N, the others dropped as by a busy node (default 1)")
     nav.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                      help="planner config override, e.g. -p horizon:=12 -p obstacles.max_obstacles:=8")
+    nav.add_argument("-s", "--scenario-param", action="append", default=[], metavar="NAME:=VALUE",
+                     help="scenario setting of every trial's world (the names of `ssf sim -p`), e.g. -s "
+                     "agents.ego_yield:=0 (agents keep their way: the ego must give way); part of each trial's key")
     nav.set_defaults(func=run_eval)
 
 
@@ -67,7 +70,7 @@ def run_eval(args: argparse.Namespace) -> int:
     from ssf_common.errors import ConfigError
     from ssf_common.paths import check_writable
     from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
-    from ssf_eval.nav.loop import PERCEPTION_NAMES
+    from ssf_eval.nav.loop import PERCEPTION_NAMES, scenario_for
     from ssf_eval.nav.stats import summarise
     from ssf_eval.results import write_result
     from ssf_planner_node.core.config import PlannerConfig
@@ -93,6 +96,7 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     overrides = parse_overrides(args.param, "-p")
     planner = build(PlannerConfig, overrides, source="-p")
+    scenario = parse_overrides(args.scenario_param, "-s")
     for path, what in ((args.json, "result file"), (args.plot, "picture")):
         if path is not None:
             check_writable(path, what)
@@ -100,8 +104,10 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ConfigError("--table-only needs --resume FILE: an existing trial log")
     log_path = args.resume or Path(f"nav_trials_{time.strftime('%Y%m%d_%H%M%S')}.jsonl")
     check_writable(log_path, "trial log")
+    for count in sorted(set(agents)):  # a bad setting is one line now, not a failure in every trial
+        scenario_for(count, scenario)
     specs = campaign_specs(perceptions, agents, args.trials, args.seed, args.route_length, args.time_limit, args.pose,
-                           overrides, latency_s=args.latency, answer_every=args.answer_every)
+                           overrides, scenario, latency_s=args.latency, answer_every=args.answer_every)
     specs = with_videos(specs, args.video_first, args.video_dir, args.video_format, args.trials)
     runner = RayRunner(args.ray) if args.ray else LocalRunner(args.workers or os.cpu_count() or 1)
     print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "

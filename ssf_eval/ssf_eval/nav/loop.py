@@ -68,7 +68,8 @@ class TrialSpec:
         """A unique name of the trial (resume matches on it)."""
         length = "full" if self.route_length is None else f"{self.route_length:g}m"
         timing = f"+late{self.latency_s:g}s-every{self.answer_every}" if self.latency_s or self.answer_every > 1 else ""
-        return f"{self.perception}/{self.agents}/{self.seed}/{length}{timing}/{self.pose}"
+        world = "".join(f"+{name}={value}" for name, value in sorted(self.scenario.items()))
+        return f"{self.perception}/{self.agents}/{self.seed}/{length}{timing}{world}/{self.pose}"
 
 
 @dataclass(frozen=True)
