@@ -15,14 +15,15 @@ import time
 from dataclasses import asdict, dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
-from ssf_common import messages, topics
+from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import parse_override
 from ssf_common.diagnostics import read_status
 from ssf_common.errors import ConfigError
+from ssf_common.geometry.se3 import invert, yaw_of
 from ssf_common.launch import GraphSpec, Launcher, load_graph
 
 SAMPLE_PERIOD_S = 1.0
@@ -65,6 +66,9 @@ class GraphBench:
     episodes_requested: int = 1  # --episodes: 1 ends the measurement with the first drive, 0 drives back to back
     distance_m: float = 0.0  # metres the ego drove, every drive of the run together
     average_speed_mps: float = 0.0  # distance_m over the simulated seconds driven
+    odom_error_p50_m: float | None = None  # /odom against the simulator's truth over the first drive: position error
+    odom_error_max_m: float | None = None  # (both in the odometry frame, the first /odom's pose as the origin) ...
+    odom_heading_error_max_deg: float | None = None  # ... and heading error
 
 
 class Probe:
@@ -78,6 +82,10 @@ class Probe:
         self.clock_wall: dict[int, list[float]] = collections.defaultdict(list)  # a restarted clock shows a stamp again
         self.scans: list[tuple[float, int]] = []
         self.odometry: list[tuple[float, int]] = []
+        self.odometry_poses: list[tuple[int, np.ndarray]] = []  # the first drive's /odom: stamp, odom <- base_link
+        self.truth_poses: dict[int, np.ndarray] = {}  # the first drive's true poses: stamp -> world <- base_link
+        self.truth_last = -1
+        self.first_drive = {"odom": True, "truth": True}  # stamps going back end the first drive's poses
         self.commands: list[float] = []
         self.diagnostics: dict[str, dict[str, float]] = {}
         self.episode: tuple[str, float] = ("running", 0.0)
@@ -87,6 +95,7 @@ class Probe:
         self.node.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA,
                                       raw=True)
         self.node.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
+        self.node.create_subscription("nav_msgs/msg/Odometry", topics.GT_ODOM, self.on_truth, QOS_DEFAULT)
         self.node.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_command, QOS_DEFAULT)
         self.node.create_subscription("diagnostic_msgs/msg/DiagnosticArray", topics.DIAGNOSTICS, self.on_diagnostics,
                                       QOS_DEFAULT)
@@ -127,8 +136,20 @@ class Probe:
             self.scans.append((time.monotonic(), int(sec) * 1_000_000_000 + int(np.uint32(nanosec))))
 
     def on_odometry(self, msg: Any) -> None:
+        stamp = messages.stamp_ns(msg.header.stamp)
         with self.lock:
-            self.odometry.append((time.monotonic(), messages.stamp_ns(msg.header.stamp)))
+            self.odometry.append((time.monotonic(), stamp))
+            self.first_drive["odom"] &= not self.odometry_poses or stamp > self.odometry_poses[-1][0]
+            if self.first_drive["odom"]:
+                self.odometry_poses.append((stamp, pose_msgs.matrix_from_pose(msg.pose.pose)))
+
+    def on_truth(self, msg: Any) -> None:
+        stamp = messages.stamp_ns(msg.header.stamp)
+        with self.lock:
+            self.first_drive["truth"] &= stamp > self.truth_last
+            if self.first_drive["truth"]:
+                self.truth_poses[stamp] = pose_msgs.matrix_from_pose(msg.pose.pose)
+            self.truth_last = stamp
 
     def on_command(self, _msg: Any) -> None:
         with self.lock:
@@ -222,6 +243,31 @@ def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
     return latency, answered
 
 
+class OdometryError(NamedTuple):
+    """The odometry against the truth at the stamps both give: position error median and max (m), heading max (deg)."""
+
+    p50_m: float
+    max_m: float
+    heading_max_deg: float
+    poses: int
+
+
+def odometry_error(odometry: list[tuple[int, np.ndarray]], truth: dict[int, np.ndarray]) -> OdometryError | None:
+    """Odometry poses (stamp, odom <- base_link; the first one's frame is the odometry's origin) against true poses
+    (stamp -> world <- base_link), each moved into the frame of the true pose at the first odometry stamp."""
+    matched = [(stamp, pose) for stamp, pose in odometry if stamp in truth]
+    if not matched:
+        return None
+    first_stamp, first_pose = matched[0]
+    origin = truth[first_stamp] @ invert(first_pose)  # world <- odom
+    position, heading = [], []
+    for stamp, pose in matched:
+        error = invert(origin @ pose) @ truth[stamp]
+        position.append(float(np.linalg.norm(error[:2, 3])))
+        heading.append(abs(np.degrees(yaw_of(error))))
+    return OdometryError(float(np.median(position)), max(position), max(heading), len(matched))
+
+
 def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]], since: float) -> list[NodeRow]:
     """One row per node: its diagnostics, CPU share and memory over the window."""
     rows = []
@@ -273,6 +319,7 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, e
         latency, answered = latencies_ms(probe, window_start)
         ended = collections.Counter(outcome for outcome, _ in probe.ended)
         driven_s, distance = (float(sum(column)) for column in zip((0.0, 0.0), *probe.driven))
+        odometry = odometry_error(list(probe.odometry_poses), dict(probe.truth_poses))
     answered_scans = len(answered & set(scans))
     return GraphBench(
         duration_s=round(measured, 2), scenario=scenario, scans=len(scans),
@@ -283,7 +330,10 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, e
         nodes=node_rows(probe, samples, window_start), episode=probe.episode[0],
         episode_time_s=round(probe.episode[1], 2), episodes=dict(ended),
         episodes_requested=episodes, distance_m=round(distance, 1),
-        average_speed_mps=round(distance / driven_s, 2) if driven_s > 0 else 0.0)
+        average_speed_mps=round(distance / driven_s, 2) if driven_s > 0 else 0.0,
+        odom_error_p50_m=None if odometry is None else round(odometry.p50_m, 3),
+        odom_error_max_m=None if odometry is None else round(odometry.max_m, 3),
+        odom_heading_error_max_deg=None if odometry is None else round(odometry.heading_max_deg, 2))
 
 
 def format_bench(bench: GraphBench) -> str:
@@ -292,7 +342,10 @@ def format_bench(bench: GraphBench) -> str:
     p95 = f"{bench.latency_p95_ms:.0f}" if bench.latency_p95_ms is not None else "-"
     lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
              f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %",
-             f"the ego drove {bench.distance_m:.0f} m at {bench.average_speed_mps:.1f} m/s on average",
+             f"the ego drove {bench.distance_m:.0f} m at {bench.average_speed_mps:.1f} m/s on average" + (
+                 "" if bench.odom_error_max_m is None else f"; /odom against the truth (first drive): "
+                 f"{bench.odom_error_p50_m:.2f} m median, {bench.odom_error_max_m:.2f} m and "
+                 f"{bench.odom_heading_error_max_deg:.1f} deg at most"),
              f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'RSS MB':>7} {'MB/10min':>9}"]
     if bench.episodes_requested != 1 and bench.episodes:
         ended = ", ".join(f"{count} {outcome}" for outcome, count in sorted(bench.episodes.items()))

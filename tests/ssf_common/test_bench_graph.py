@@ -128,3 +128,29 @@ def test_drives_back_to_back_keep_the_first_outcome_and_count_every_drive():
     assert "drives ended back to back: 1 collision, 1 success" in format_bench(bench)
     bench.distance_m, bench.average_speed_mps = 433.0, 3.88
     assert "the ego drove 433 m at 3.9 m/s on average" in format_bench(bench)
+
+
+def test_odometry_is_scored_against_the_truth_of_the_first_drive():
+    from ssf_common.bench_graph import odometry_error
+    from ssf_common.conversions import odometry_to_msg
+    from ssf_common.geometry.se3 import invert, make_pose
+    from ssf_common.records import OdometryEstimate
+
+    truth = {k * 100: make_pose(50.0 + 2.0 * k, -3.0, 0.0, yaw=1.0 + 0.01 * k) for k in range(10)}
+    origin = invert(truth[200])  # the odometry starts at the stamp-200 pose ...
+    odometry = [(k * 100, origin @ truth[k * 100]) for k in range(2, 10)]
+    odometry[-1] = (900, odometry[-1][1] @ make_pose(0.3, 0.4, 0.0, yaw=np.radians(2.0)))  # ... and ends 0.5 m off
+    score = odometry_error(odometry + [(1000, np.eye(4))], truth)  # a stamp the truth lacks is left out
+    assert score.poses == 8 and score.p50_m == pytest.approx(0.0, abs=1e-9)
+    assert score.max_m == pytest.approx(0.5) and score.heading_max_deg == pytest.approx(2.0)
+    assert odometry_error([], truth) is None
+
+    probe = ScriptedProbe()  # the probe keeps the first drive's poses: stamps going back end it
+    probe.odometry, probe.odometry_poses, probe.truth_poses = [], [], {}
+    probe.truth_last, probe.first_drive = -1, {"odom": True, "truth": True}
+    for stamp in (100, 200, 100, 300):
+        estimate = OdometryEstimate(stamp, make_pose(stamp * 0.01, 0.0, 0.0), np.eye(6))
+        Probe.on_odometry(probe, odometry_to_msg(estimate))
+        Probe.on_truth(probe, odometry_to_msg(estimate))
+    assert [stamp for stamp, _ in probe.odometry_poses] == [100, 200] and sorted(probe.truth_poses) == [100, 200]
+    assert len(probe.odometry) == 4  # latency still counts every answer

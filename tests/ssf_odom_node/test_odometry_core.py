@@ -380,3 +380,13 @@ def test_real_scan_known_motion(shared_data, name, method):
     estimate = odometry.step(OdomInput(100_000_000, second)).pose
     translation, rotation = pose_error(estimate, motion)
     assert translation < 0.05 and rotation < 0.2, (translation, rotation)
+
+
+def test_next_pose_is_the_last_pose_moved_on_by_the_static_flow():
+    odometry = make_odometry("ssf", OdomConfig())
+    assert odometry.next_pose() is None  # no scan yet
+    odometry.stamp_ns, odometry.pose = 10**9, make_pose(20.0, 5.0, 0.0, yaw=0.3)
+    odometry.next_motion = invert(make_pose(0.81, 0.0, 0.0, yaw=0.01))  # static points seem to move back
+    np.testing.assert_allclose(odometry.next_pose(), odometry.pose @ make_pose(0.81, 0.0, 0.0, yaw=0.01))
+    odometry.next_motion = None
+    assert odometry.next_pose() is None

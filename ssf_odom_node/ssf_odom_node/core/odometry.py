@@ -234,6 +234,14 @@ class Odometry:
         per_scan = log_se3(invert(self.next_motion))
         return self.pose @ exp_se3(per_scan * (elapsed / self.config.scan_period)), by_velocity
 
+    def next_pose(self) -> np.ndarray | None:
+        """The pose of the scan the last scan's flow reaches: the last pose moved on by its static flow's motion (None
+        without a flow). Checked against constant velocity, it came out worse in the real-time graph (turns after
+        skipped scans: 6 degrees off against 0.02)."""
+        if self.stamp_ns is None or self.next_motion is None:
+            return None
+        return self.pose @ invert(self.next_motion)
+
     def prior_pose(self, frame: OdomInput, measured: bool = False) -> np.ndarray | None:
         """The new scan's pose by the motion prior (or by the measured motion), when one is given and a valid 4x4
         rigid transform."""
