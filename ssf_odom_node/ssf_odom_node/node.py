@@ -56,9 +56,9 @@ class OdomNodeConfig(Section):
     max_decel: float = Field(6.0, gt=0.0, description="... and this deceleration (m/s^2, positive)")
     pose_at: str = Field("next_scan", description="next_scan: /odom and /tf give the pose of the scan the flow "
                          "reaches (the newest scan: the scan before it, refined on the map, moved on by the static "
-                         "flow's motion), stamped one scan period after the flow, as soon as the pair's flow is known; "
-                         "scan: the refined pose of the scan the flow starts from (a scan period older). /ssf/path "
-                         "always holds the refined poses")
+                         "flow's motion), stamped one sensor period (learnt from the stamps) after the flow, as soon as "
+                         "the pair's flow is known; scan: the refined pose of the scan the flow starts from (a scan "
+                         "period older). /ssf/path always holds the refined poses")
     map_period_s: float = Field(1.0, gt=0.0, description="how often /ssf/map is published (s)")
     path_length: int = Field(5000, ge=1, description="poses kept on /ssf/path")
     report_period_s: float = Field(5.0, gt=0.0)
@@ -251,8 +251,8 @@ class OdomNode(Node):
         self.speed = float(estimate.twist[0]) if step.next_motion is None else forward_speed(
             invert(step.next_motion), self.config.scan_period, self.mount)  # the flow's: the speed at the scan itself
         newest = self.newest(estimate, step)
-        if self._published_ns is None or newest.stamp_ns > self._published_ns:  # not again: the period was learnt
-            self._published_ns = newest.stamp_ns  # meanwhile (the first two scans answered were not consecutive)
+        if self._published_ns is None or newest.stamp_ns > self._published_ns:  # a stamp already given (a shorter
+            self._published_ns = newest.stamp_ns  # period learnt since) is not given again
             self.odom_pub.publish(odometry_to_msg(newest))
             self.tf_pub.publish(odometry_transform_msg(newest))
         self.path.append(messages.msg_type("geometry_msgs/msg/PoseStamped")(
