@@ -275,7 +275,7 @@ class DistributedLoop:
         if self.round_trip_s is not None and now_s - scan.started_s + self.round_trip_s > self.timeout_s:
             return self._finish(i, status, "deadline")  # another iteration would end after the timeout: answer now
         scan.hinted_s = now_s
-        prior = self._prior(scan) if i == 0 else None  # carried only when a hint needs it: most scans end at i = 0
+        prior = self._prior(scan) if i == 0 else None  # carried only for a hint (in real time the loop ends at i = 0)
         hint = mask.dynamic_prob if prior is None else np.maximum(mask.dynamic_prob, prior)
         return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, hint, mask.instance, i + 1), status)
 
