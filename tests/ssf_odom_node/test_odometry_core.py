@@ -305,6 +305,30 @@ def test_a_wrong_motion_prior_loses_to_the_flow_search():
     assert source == "flow"
 
 
+def test_where_the_flow_and_the_prior_agree_across_a_gap_the_flow_search_is_skipped(monkeypatch):
+    """Straight on over seven skipped scans, the commands' motion exact: the flow's extrapolation already is the
+    prior's searched start, so only the prior's five headings are tried (not the flow's wide search) and the pose
+    is right."""
+    odometry = make_odometry("ssf", OdomConfig(ssf_range=100.0))
+    world, moving = street(4, moved=False)
+    world = world[~moving]
+    poses = {index: make_pose(1.0 * index) for index in (0, 1, 7, 8, 14, 15)}
+    scan = lambda index: transform_points(invert(poses[index]), world)
+    searched: list[int] = []
+    search = type(odometry).best_heading
+    monkeypatch.setattr(type(odometry), "best_heading",
+                        lambda self, *args: searched.append(len(args[-1])) or search(self, *args))
+    for index in (0, 7, 14):
+        points = scan(index)
+        prior = None if index == 0 else invert(poses[index - 7]) @ poses[index]
+        step = odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points,
+                                       np.zeros(len(points), np.float32), prior))
+    translation, rotation = pose_error(step.pose, poses[14])
+    assert translation < 0.05 and rotation < 0.2, (translation, rotation)
+    assert step.predicted_by == "prior"
+    assert searched[-1] == 5 and len(searched) == 2, searched  # one search per gap: the prior's five headings
+
+
 def test_a_motion_prior_must_be_a_finite_transform():
     odometry = make_odometry("points")
     points = np.random.default_rng(0).uniform(-20, 20, (500, 3))

@@ -349,17 +349,16 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     width = 2 * half + 1
     cells = np.round(displacement / config.histogram_bin).astype(np.int64) + half
     codes = clusters.labels1[first] * width * width + cells[:, 0] * width + cells[:, 1]
-    unique, votes = np.unique(codes, return_counts=True)
-    cluster_of = unique // (width * width)
-    order = np.lexsort((-votes, cluster_of))
-    rank = np.arange(order.size) - np.searchsorted(cluster_of[order], cluster_of[order], side="left")
+    votes = np.bincount(codes, minlength=count * width * width).reshape(count, width * width)
+    rows = np.arange(count)
     peaks = []
-    for level in range(config.histogram_peaks):
-        chosen = order[rank == level]
+    for _ in range(config.histogram_peaks):  # the most voted cell of each cluster (ties: the first), then the next
+        cell = votes.argmax(axis=1)
+        voted = votes[rows, cell] > 0
+        votes[rows, cell] = -1
         shift = np.zeros((count, 3))
-        cell = unique[chosen] % (width * width)
-        shift[cluster_of[chosen], 0] = (cell // width - half) * config.histogram_bin
-        shift[cluster_of[chosen], 1] = (cell % width - half) * config.histogram_bin
+        shift[voted, 0] = (cell[voted] // width - half) * config.histogram_bin
+        shift[voted, 1] = (cell[voted] % width - half) * config.histogram_bin
         peaks.append(shift)
     return peaks
 

@@ -372,12 +372,16 @@ class Odometry:
         """Scans were skipped: the flow's extrapolated motion is searched in heading and refined; so is the motion
         prior (the commands sent meanwhile: a narrow search), or else constant velocity where it contradicts the flow;
         the result that lays most points on steep surfaces wins (the ground fits a wrong heading as well; ties go to
-        the prior, then the flow)."""
+        the prior, then the flow). Where the flow's extrapolated start already is the prior's searched one, that is
+        refined without the flow's wide search (most of a step's time across a gap)."""
         candidates: list[tuple[Alignment, str]] = []
         prior_start = None
         if by_prior is not None:
             reach = self.config.command_yaw_rate * periods * self.config.scan_period
             prior_start = self.best_heading(points, weights, target, by_prior, (0.0, reach / 2, -reach / 2, reach, -reach))
+            if by_flow is not None and self.same_start(by_flow, prior_start):  # the flow's search would start there
+                return point_to_plane(points, weights, target, prior_start, self.config.search_gates,
+                                      self.config.kernel), "prior"
         if by_flow is not None:
             start = self.best_heading(points, weights, target, by_flow, self.gap_headings(periods))
             if prior_start is not None and self.same_start(start, prior_start):
