@@ -6,14 +6,15 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from ssf_common.geometry.boxes import bounding_box, box_corners, min_area_rectangle
+from ssf_common.geometry.boxes import bounding_box, bounding_boxes, box_corners, min_area_rectangle
 from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, voxel_components
 from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
 from ssf_common.geometry.ground import ground_mask, height_above_ground
 from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed, measured_motion
-from ssf_common.geometry.labels import label_extents, label_means, pick_per_label, ragged_arange
+from ssf_common.geometry.labels import label_extents, label_means, label_sums_of_rows, pick_per_label, ragged_arange
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
-from ssf_common.geometry.sampling import Sampling, farthest_point_indices, greedy_farthest_indices, sample_indices, voxel_indices
+from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, greedy_farthest_indices, grid_cells, sample_indices,
+                                          voxel_indices)
 from ssf_common.geometry.se3 import (compose, invert, make_pose, relative_pose, rigid_flow, rotation_angle,
                                      transform_points, yaw_of, yaw_translate)
 
@@ -299,3 +300,40 @@ def test_measured_motion_integrates_each_sample_over_the_time_before_it():
     assert later[:2, 3] == pytest.approx([0.4 * np.cos(0.025), 0.4 * np.sin(0.025)])
     mount = make_pose(1.5, 0.0, 1.8)
     assert mount @ measured_motion(samples, 0, 20 * tenth, mount) @ invert(mount) == pytest.approx(arc)
+
+
+def test_bounding_boxes_of_many_clusters_match_one_box_per_cluster():
+    """The batched calipers give each label the box bounding_box gives its points alone: scattered, collinear,
+    repeated, two-point and one-point clusters, shuffled together."""
+    rng = np.random.default_rng(3)
+    groups = [rng.normal(size=(40, 3)) * [3.0, 1.0, 0.5], np.column_stack([np.linspace(0, 3, 9), np.linspace(0, 1, 9),
+              rng.random(9)]), np.repeat([[1.0, 2.0, 0.5]], 6, axis=0), rng.normal(size=(2, 3)), rng.normal(size=(1, 3)),
+              rng.random((25, 3)) * [4.4, 1.8, 1.5] + [10.0, -4.0, 0.0]]
+    labels = np.concatenate([np.full(len(group), index) for index, group in enumerate(groups)])
+    points = np.concatenate(groups)
+    order = rng.permutation(len(points))
+    centres, sizes, yaws = bounding_boxes(points[order], labels[order], len(groups))
+    for index, group in enumerate(groups):
+        box = bounding_box(group)
+        np.testing.assert_allclose(centres[index], box.centre, atol=1e-9)
+        np.testing.assert_allclose(sizes[index], box.size, atol=1e-9)
+        if box.size[0] > box.size[1] + 1e-9:  # a square's heading is any of four
+            assert abs((yaws[index] - box.yaw + np.pi / 2) % np.pi - np.pi / 2) < 1e-9
+    assert [array.shape for array in bounding_boxes(np.zeros((0, 3)), np.zeros(0, int), 0)] == [(0, 3), (0, 3), (0,)]
+
+
+def test_grid_cells_number_the_occupied_grid_row_major_with_a_border():
+    points = np.array([[0.1, 5.2], [1.9, 5.0], [-0.5, 7.9]])
+    codes, shape = grid_cells(points, 1.0, border=1)
+    assert shape == (5, 5)  # x cells -1..1 and y cells 5..7, one empty cell on each side
+    keys = np.floor(points).astype(int) - [-1, 5] + 1
+    np.testing.assert_array_equal(codes, keys[:, 0] * shape[1] + keys[:, 1])
+
+
+def test_label_sums_of_rows_match_a_bincount_per_row():
+    rng = np.random.default_rng(4)
+    labels = rng.integers(0, 7, 200)
+    labels[labels == 3] = 4  # an empty label sums to zero
+    values = rng.normal(size=(5, 200))
+    expected = np.stack([np.bincount(labels, row, 7) for row in values], axis=1)
+    np.testing.assert_allclose(label_sums_of_rows(values, labels, 7), expected, atol=1e-12)

@@ -7,6 +7,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.spatial import ConvexHull, QhullError
 
+from ssf_common.geometry.labels import ragged_arange
+
 
 class Box(NamedTuple):
     """An upright box: centre (x, y, z), size (length >= width, height), heading of the length axis (rad)."""
@@ -21,12 +23,7 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
     xy = np.asarray(xy, dtype=np.float64)
     if len(xy) == 0:
         return np.zeros(2), np.zeros(2), 0.0
-    hull = xy
-    if len(xy) >= 3:
-        try:
-            hull = xy[ConvexHull(xy).vertices]
-        except QhullError:  # collinear or repeated points
-            hull = xy
+    hull = footprint_hull(xy)
     edges = np.diff(np.vstack([hull, hull[:1]]), axis=0)
     angles = np.unique(np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2))
     angles = angles if angles.size else np.zeros(1)
@@ -44,6 +41,58 @@ def min_area_rectangle(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
         sides, yaw = sides[::-1], yaw + np.pi / 2
     yaw = float((yaw + np.pi / 2) % np.pi - np.pi / 2)
     return centre, sides, yaw
+
+
+def footprint_hull(xy: np.ndarray) -> np.ndarray:
+    """The convex hull's vertices of 2-D points, in order; the points as they come where they are too few or collinear."""
+    if len(xy) >= 3:
+        try:
+            return xy[ConvexHull(xy).vertices]
+        except QhullError:  # collinear or repeated points
+            return xy
+    return xy
+
+
+def bounding_boxes(points: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """bounding_box of every label's points at once (labels 0..count-1, none empty): centres (count, 3), sizes
+    (count, 3) and yaws (count,). The hulls come one by one; the calipers' candidate headings of all hulls are scored
+    together, which is what a box per call spends most of its time on."""
+    points = np.asarray(points, dtype=np.float64)
+    if count == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0)
+    order = np.argsort(labels, kind="stable")
+    grouped = points[order]
+    starts = np.searchsorted(np.asarray(labels)[order], np.arange(count + 1))
+    hulls = [footprint_hull(grouped[lo:hi, :2]) for lo, hi in zip(starts[:-1], starts[1:])]
+    corners = np.array([len(hull) for hull in hulls])
+    hull = np.concatenate(hulls)
+    owner = np.repeat(np.arange(count), corners)
+    first = np.repeat(np.cumsum(corners) - corners, corners)
+    vertex = np.arange(len(hull))
+    following = np.where(vertex + 1 < first + corners[owner], vertex + 1, first)  # each hull closes on itself
+    edges = hull[following] - hull
+    angles = np.mod(np.arctan2(edges[:, 1], edges[:, 0]), np.pi / 2)  # one candidate heading per hull edge
+    c, s = np.cos(angles), np.sin(angles)
+    tried = np.repeat(vertex, corners[owner])  # every candidate against every vertex of its own hull
+    against = first[tried] + ragged_arange(corners[owner])
+    u = hull[against, 0] * c[tried] + hull[against, 1] * s[tried]
+    v = hull[against, 1] * c[tried] - hull[against, 0] * s[tried]
+    runs = np.cumsum(corners[owner]) - corners[owner]
+    low_u, high_u = np.minimum.reduceat(u, runs), np.maximum.reduceat(u, runs)
+    low_v, high_v = np.minimum.reduceat(v, runs), np.maximum.reduceat(v, runs)
+    ranked = np.lexsort((angles, (high_u - low_u) * (high_v - low_v), owner))  # least area, then least heading
+    best = ranked[np.searchsorted(owner[ranked], np.arange(count))]
+    centre_u, centre_v = (low_u[best] + high_u[best]) / 2, (low_v[best] + high_v[best]) / 2
+    cb, sb = c[best], s[best]
+    sides = np.stack([high_u[best] - low_u[best], high_v[best] - low_v[best]], axis=1)
+    yaws = angles[best].copy()
+    across = sides[:, 1] > sides[:, 0]
+    sides[across] = sides[across, ::-1]
+    yaws[across] += np.pi / 2
+    yaws = (yaws + np.pi / 2) % np.pi - np.pi / 2
+    low_z, high_z = np.minimum.reduceat(grouped[:, 2], starts[:-1]), np.maximum.reduceat(grouped[:, 2], starts[:-1])
+    centres = np.stack([centre_u * cb - centre_v * sb, centre_u * sb + centre_v * cb, (low_z + high_z) / 2], axis=1)
+    return centres, np.column_stack([sides, high_z - low_z]), yaws
 
 
 def bounding_box(points: np.ndarray) -> Box:

@@ -12,6 +12,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ssf_common.geometry.sampling import grid_cells
+
 NEIGHBOUR_OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
                               if (dx, dy, dz) > (0, 0, 0)], dtype=np.int64)
 
@@ -27,10 +29,7 @@ def voxel_components(points: np.ndarray, voxel: float) -> Clustering:
     """Connected components of the occupied voxels (26-connected): points in touching voxels share a label."""
     if points.shape[0] == 0:
         return Clustering(np.full(0, -1), 0)
-    keys = np.floor(points[:, :3] / voxel).astype(np.int64)
-    keys -= keys.min(axis=0) - 1
-    span = keys.max(axis=0) + 2
-    codes = (keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2]
+    codes, span = grid_cells(points[:, :3], voxel, border=1)
     voxels, inverse = np.unique(codes, return_inverse=True)
     strides = np.array([span[1] * span[2], span[2], 1], dtype=np.int64)
     rows, cols = [], []
@@ -58,11 +57,7 @@ def spacing_components(points: np.ndarray, cell: float, reach: float, min_link: 
     xyz = np.asarray(points[:, :3], np.float64)
     spacing = angular_spacing(xyz, sample, seed) if spacing is None else spacing
     link = np.clip(reach * spacing * np.linalg.norm(xyz, axis=1), min_link, max_link)
-    keys = np.floor(xyz / cell).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    _, first, inverse = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_index=True,
-                                  return_inverse=True)
+    _, first, inverse = np.unique(grid_cells(xyz, cell)[0], return_index=True, return_inverse=True)
     cells = xyz[first]
     near = cKDTree(cells).query_ball_point(cells, link[first], return_sorted=False)
     lengths = np.fromiter(map(len, near), np.int64, len(near))
@@ -90,10 +85,7 @@ def angular_neighbours(points: np.ndarray, labels: np.ndarray, angle: float, cel
     if valid.size == 0:
         return np.zeros((0, 2), np.int64)
     xyz = np.asarray(points[valid, :3], np.float64)
-    keys = np.floor(xyz / cell).astype(np.int64)
-    keys -= keys.min(axis=0)
-    span = keys.max(axis=0) + 1
-    _, first = np.unique((keys[:, 0] * span[1] + keys[:, 1]) * span[2] + keys[:, 2], return_index=True)
+    _, first = np.unique(grid_cells(xyz, cell)[0], return_index=True)
     directions = xyz[first] / np.maximum(np.linalg.norm(xyz[first], axis=1, keepdims=True), 1e-6)
     near = cKDTree(directions).query_pairs(2.0 * np.sin(angle / 2.0), output_type="ndarray")
     pairs = np.sort(np.asarray(labels)[valid[first]][near], axis=1)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ssf_common.geometry.sampling import grid_cells
+
 DENSE_GRID_CELLS = 1 << 22  # beyond this many grid cells (scattered outliers) the sparse path is used
 ZONE_BINS = 512  # at most this many range bins per azimuth sector (their size grows for scans with far outliers)
 SPREAD_FLOOR = 0.01  # m: the ground's spread about its zone fit is taken as at least this (no range sensor is finer)
@@ -28,12 +30,9 @@ def height_above_ground(points: np.ndarray, cell: float = 2.0, zones: bool = Fal
 
 def grid_height_above_ground(points: np.ndarray, cell: float) -> np.ndarray:
     """Height of each point above the lowest point of its grid cell (or its 8 neighbours, slope-tolerant)."""
-    keys = np.floor(points[:, :2] / cell).astype(np.int64)
-    keys -= keys.min(axis=0) - 1  # a border of empty cells around the scan
-    rows, cols = (int(n) + 2 for n in keys.max(axis=0))
+    cells, (rows, cols) = grid_cells(points[:, :2], cell, border=1)  # a border of empty cells around the scan
     if rows * cols > DENSE_GRID_CELLS:
-        return sparse_height_above_ground(points, keys, cols, cell)
-    cells = keys[:, 0] * cols + keys[:, 1]
+        return sparse_height_above_ground(points, cells, cols, cell)
     lowest = np.full(rows * cols, np.inf)
     np.minimum.at(lowest, cells, np.asarray(points[:, 2], np.float64))  # same dtype: ufunc.at's fast path
     grid = lowest.reshape(rows, cols)
@@ -47,9 +46,9 @@ def grid_height_above_ground(points: np.ndarray, cell: float) -> np.ndarray:
     return points[:, 2] - floor[cells]
 
 
-def sparse_height_above_ground(points: np.ndarray, keys: np.ndarray, cols: int, cell: float) -> np.ndarray:
-    """height_above_ground over the occupied cells only, for scans spread over a huge area."""
-    cells = keys[:, 0] * cols + keys[:, 1]
+def sparse_height_above_ground(points: np.ndarray, cells: np.ndarray, cols: int, cell: float) -> np.ndarray:
+    """height_above_ground over the occupied cells only (`cells`: each point's code on a grid `cols` wide), for scans
+    spread over a huge area."""
     unique, inverse = np.unique(cells, return_inverse=True)
     lowest = np.full(unique.shape[0], np.inf, dtype=np.float64)
     np.minimum.at(lowest, inverse, np.asarray(points[:, 2], np.float64))

@@ -50,6 +50,19 @@ def greedy_farthest_indices(points: np.ndarray, count: int, start: int = 0) -> n
     return chosen
 
 
+def grid_cells(points: np.ndarray, cell: float, border: int = 0) -> tuple[np.ndarray, tuple[int, ...]]:
+    """The grid cell of each point (N, D) as one int64 code, row-major, the cells counted from the lowest occupied one
+    with `border` empty cells around them, and the grid's shape. One contiguous row per axis: reductions along a row
+    are many times faster than along axis 0 of an (N, D) array."""
+    keys = [np.floor(row / cell).astype(np.int64) for row in np.ascontiguousarray(np.asarray(points).T)]
+    keys = [key - (int(key.min()) - border) for key in keys]
+    shape = tuple(int(key.max()) + 1 + border for key in keys)
+    codes = keys[0]
+    for key, size in zip(keys[1:], shape[1:]):
+        codes = codes * size + key
+    return codes, shape
+
+
 def voxel_indices(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point (the first) per occupied voxel (any number of coordinates), indices sorted."""
     points = np.asarray(points)

@@ -10,10 +10,10 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
-from ssf_common.geometry.boxes import bounding_box
+from ssf_common.geometry.boxes import bounding_boxes
 from ssf_common.geometry.clustering import dbscan
 from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.labels import label_counts
+from ssf_common.geometry.labels import label_counts, label_means
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, transform_points
 from ssf_common.records import ObstacleKind, Obstacles, Segmentation
@@ -175,17 +175,15 @@ def still_clusters(points: np.ndarray, stamp_ns: int, frame_id: str, config: Sti
     labels, count = dbscan(points[:, :2], config.eps, config.min_samples)
     sizes_of = label_counts(labels[labels >= 0], count)
     keep = np.flatnonzero(sizes_of >= config.min_points)
-    order = np.argsort(labels, kind="stable")
-    members = np.split(points[order], np.searchsorted(labels[order], np.arange(count + 1)))[1:-1]
-    boxes = [bounding_box(members[k]) for k in keep]
-    sizes = np.array([box.size for box in boxes]).reshape(-1, 3)
+    renumbered = np.full(count + 1, -1)
+    renumbered[keep] = np.arange(len(keep))
+    kept = renumbered[labels] >= 0  # labels -1 (noise) read the last entry: -1
+    points, labels = points[kept], renumbered[labels[kept]]
+    centres, sizes, yaws = bounding_boxes(points, labels, len(keep))
     kinds = np.where(sizes[:, 0] >= config.vehicle_length, ObstacleKind.VEHICLE, ObstacleKind.PEDESTRIAN)
-    means = np.array([members[k][:, :2].mean(axis=0) for k in keep]).reshape(-1, 2)
-    found = Obstacles(stamp_ns, frame_id, ids=np.zeros(len(keep), np.int64), kinds=kinds,
-                      centres=np.array([box.centre for box in boxes]).reshape(-1, 3), sizes=sizes,
-                      yaws=np.array([box.yaw for box in boxes]), velocities=np.zeros((len(keep), 3)),
-                      point_counts=sizes_of[keep])
-    return StillClusters(found, means)
+    found = Obstacles(stamp_ns, frame_id, ids=np.zeros(len(keep), np.int64), kinds=kinds, centres=centres,
+                      sizes=sizes, yaws=yaws, velocities=np.zeros((len(keep), 3)), point_counts=sizes_of[keep])
+    return StillClusters(found, label_means(points[:, :2], labels, len(keep)))
 
 
 def clustered_points(points: np.ndarray, config: StillConfig) -> np.ndarray:
