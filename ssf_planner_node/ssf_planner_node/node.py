@@ -149,7 +149,7 @@ class PlannerNode(Node):
             self.marker_pub.publish(self.markers.plan(step.plan))
         self._publish_state(odometry.stamp_ns, step)
         self.stats.record(step.solve_ms, "ticks")
-        if step.status in (TickStatus.SHIFTED, TickStatus.ESCAPE, TickStatus.BRAKE):
+        if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
             self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
 
     def _now(self, state: VehicleState) -> VehicleState:

@@ -238,28 +238,3 @@ def test_pose_history_interpolates_across_skipped_scans():
     assert poses.at(600_000_000) is None and poses.at(0) is None
     poses.add(2_000_000_000, make_pose(20.0, 3.0, 0.0))
     assert poses.at(1_000_000_000) is None  # 1.6 s without odometry: nothing to bridge
-
-
-def test_a_car_boxed_in_at_a_standstill_turns_its_way_out():
-    # nose to nose with a car that waits for it, a car beside its rear (a dead end met in a 1000-agent world):
-    # the linearised problem finds only plans that stand still; the slow motions find the way out
-    world = lambda t: boxes([[5.04, 3.50], [-2.50, 0.0]], [[4.91, 1.77], [5.05, 1.78]])  # noqa: E731
-    start = (0.0, 2.29, 0.053, 0.0)
-    planner = planner_for([[-100, 0], [300, 0]])
-    states, clearance, steps = drive(planner, start, 120, world)
-    assert states[-1, 0] > 20.0 and clearance.min() > 0.0  # out, and never touched either car
-    escapes = [tick for tick, step in enumerate(steps) if step.status is TickStatus.ESCAPE]
-    assert escapes and escapes[0] >= 10 and len(escapes) <= 5  # only after a second at a standstill, and briefly
-    waiting = planner_for([[-100, 0], [300, 0]], **{"escape.enabled": False})
-    stuck, _, _ = drive(waiting, start, 120, world)
-    assert np.hypot(*(stuck[-1, :2] - start[:2])) < 0.5  # without it the car waits for good
-
-
-def test_with_no_room_to_turn_the_car_waits():
-    # a wall 0.15 m ahead of the bumper: turning on the spot would swing a front corner into it, so no slow motion
-    # keeps the safety distance and the car stays where it is
-    wall = lambda t: boxes([[4.0, 0.0]], [[3.0, 3.0]])  # noqa: E731
-    planner = planner_for([[0, 0], [200, 0]])
-    states, clearance, steps = drive(planner, (0.0, 0.0, 0.0, 0.0), 40, wall)
-    assert np.abs(states[-1, :3]).max() < 1e-6 and clearance.min() > 0.1
-    assert not any(step.status is TickStatus.ESCAPE for step in steps)

@@ -79,16 +79,6 @@ class SolverConfig(Section):
                                "used; 0 = no deadline (lockstep simulation, where time waits for the planner)")
 
 
-class EscapeConfig(Section):
-    """A recovery for a car boxed in at a standstill: where no plan is collision-free, the best of a fan of slow
-    motions (turning on the spot, creeping, turning then creeping) that keeps the safety distance, instead of waiting
-    for traffic that does not make room."""
-
-    enabled: bool = Field(True, description="try the slow motions before braking, once the car has stood still")
-    after_s: float = Field(1.0, ge=0.0, description="... for this long (s) below 0.1 m/s")
-    speed: float = Field(1.5, gt=0.0, le=5.0, description="the creeping motions' speed (m/s)")
-
-
 class PlannerConfig(Section):
     """Everything the MPC needs; the same dotted names in YAML, ROS parameters and CLI flags."""
 
@@ -113,7 +103,6 @@ class PlannerConfig(Section):
     weights: WeightsConfig = WeightsConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
     solver: SolverConfig = SolverConfig()
-    escape: EscapeConfig = EscapeConfig()
 
     @model_validator(mode="after")
     def _speeds(self) -> PlannerConfig:

@@ -2,9 +2,7 @@
 horizon step the separating direction between planned footprint and predicted obstacle, in closed form, and
 (2) the primal step: the QP in states and controls with the distance bounds those directions make linear,
 until the plan stops moving or the rounds run out. A failed or late solve never stalls the car: the previous
-plan, shifted to now, if it is still collision-free; else, for a car that has stood still a while, the best
-collision-free of a fan of slow motions (the linearised problem cannot see that turning on the spot opens a way);
-else full braking. Every fallback is counted."""
+plan, shifted to now, if it is still collision-free; else full braking. Every fallback is counted."""
 
 from __future__ import annotations
 
@@ -18,8 +16,8 @@ import numpy as np
 
 from ssf_common.records import Obstacles, Plan
 from ssf_planner_node.core import avoidance
-from ssf_planner_node.core.config import Model, PlannerConfig
-from ssf_planner_node.core.models import Command, command_of, rollout, trajectory, turn_limit
+from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.models import Command, command_of, rollout, trajectory
 from ssf_planner_node.core.problem import Reference, TrackingProblem
 from ssf_planner_node.core.route import Route
 
@@ -39,15 +37,11 @@ class VehicleState(NamedTuple):
         return np.array([self.x, self.y, self.yaw, self.speed], dtype=np.float64)
 
 
-HALTED_SPEED = 0.1  # m/s: slower than this the car stands still
-
-
 class TickStatus(str, Enum):
     """How a tick's command came about."""
 
     SOLVED = "solved"  # the MPC's own plan
     SHIFTED = "shifted"  # fallback: the previous plan shifted to now
-    ESCAPE = "escape"  # fallback: a slow turning or creeping motion clear of the obstacles (standing still)
     BRAKE = "brake"  # fallback: full braking
     NO_ROUTE = "no_route"  # nothing to follow: standing still
 
@@ -76,7 +70,7 @@ class PlannerStats:
     @property
     def fallbacks(self) -> int:
         """Ticks that used a fallback."""
-        return self.ticks[TickStatus.SHIFTED] + self.ticks[TickStatus.ESCAPE] + self.ticks[TickStatus.BRAKE]
+        return self.ticks[TickStatus.SHIFTED] + self.ticks[TickStatus.BRAKE]
 
     @property
     def total(self) -> int:
@@ -107,7 +101,6 @@ class RdaPlanner:
         self._memory: _Memory | None = None
         self._applied = np.zeros(2)
         self._ego_radius = 0.5 * float(np.hypot(config.vehicle.length, config.vehicle.width))
-        self._halted_ns: int | None = None  # since when the car stands still (below HALTED_SPEED)
 
     def set_route(self, route: Route) -> None:
         """Follow another route from now on."""
@@ -118,8 +111,6 @@ class RdaPlanner:
         """The command for this tick; obstacles in the route's frame (None: none known); stale caps the speed."""
         started = time.perf_counter()
         cfg = self.config
-        if state.speed >= HALTED_SPEED or self._halted_ns is None or state.stamp_ns < self._halted_ns:
-            self._halted_ns = state.stamp_ns if state.speed < HALTED_SPEED else None
         if self.route is None:
             return self._finish(self._brake(state, "no route", status=TickStatus.NO_ROUTE), started)
         done = self.route.remaining(state.vector[:2]) <= 0.0 or \
@@ -168,12 +159,6 @@ class RdaPlanner:
         if clearance < 0.0:
             return self._finish(self._fallback(state, corners, f"plan collides ({clearance:.2f} m)"), started, rounds,
                                 len(chosen), done)
-        if not done and self._may_escape(state) and nominal[1, 3] < HALTED_SPEED:
-            # a plan that keeps the car standing may be the linearisation's local minimum: a slow motion that tracks
-            # the route better and stays clear is taken instead
-            escape = self._escape(state, corners, "plan keeps standing", better_than=self._tracking_cost(nominal))
-            if escape is not None:
-                return self._finish(escape, started, rounds, len(chosen), done)
         self._memory = _Memory(state.stamp_ns, nominal, controls)
         command = command_of(cfg, state.vector, controls[0])
         if done:
@@ -232,8 +217,7 @@ class RdaPlanner:
         return float(self._hyperplanes(states, corners).distances[1:].min())
 
     def _fallback(self, state: VehicleState, corners: np.ndarray, reason: str) -> PlanStep:
-        """The previous plan shifted to now while it stays clear of the obstacles; else, standing still long enough,
-        the best slow motion clear of them; else brake."""
+        """The previous plan shifted to now while it stays clear of the obstacles; else brake."""
         memory = self._memory
         if memory is not None:
             elapsed = (state.stamp_ns - memory.stamp_ns) * 1e-9
@@ -246,81 +230,7 @@ class RdaPlanner:
                     self._applied = controls[0].copy()
                     return PlanStep(command, self._plan(state, states, controls), TickStatus.SHIFTED, reason, 0.0, 0,
                                     corners.shape[1], clearance, False)
-        if self._may_escape(state):
-            step = self._escape(state, corners, reason)
-            if step is not None:
-                return step
         return self._brake(state, reason, corners)
-
-    def _may_escape(self, state: VehicleState) -> bool:
-        """The escape is on and the car has stood still for its `after_s`."""
-        escape = self.config.escape
-        return escape.enabled and self.route is not None and self._halted_ns is not None and \
-            state.stamp_ns - self._halted_ns >= escape.after_s * 1e9
-
-    def _escape(self, state: VehicleState, corners: np.ndarray, reason: str,
-                better_than: float = float("inf")) -> PlanStep | None:
-        """Of the slow motions, the one that tracks the route best among those that keep the safety distance, if it
-        tracks it better than `better_than`; it becomes the next tick's warm start (None: no such motion)."""
-        cfg = self.config
-        candidates = self._slow_motions(state)
-        states = np.stack([rollout(self._trajectory, state.vector, controls) for controls in candidates])
-        clearances = np.full(len(candidates), np.inf)
-        if corners.shape[1]:  # all candidates' footprints against the obstacles at once
-            count, steps = states.shape[:2]
-            flat = states.reshape(-1, states.shape[2])
-            planes = avoidance.hyperplanes(flat[:, :2], flat[:, 2], flat[:, 3], cfg.vehicle.length, cfg.vehicle.width,
-                                           np.tile(corners, (count, 1, 1, 1)), corners.shape[1])
-            clearances = planes.distances.reshape(count, steps, -1)[:, 1:].min(axis=(1, 2))
-        clear = np.flatnonzero(clearances >= cfg.obstacles.safety_distance)
-        if not len(clear):
-            return None
-        costs = [self._tracking_cost(states[i]) for i in clear]
-        if min(costs) >= better_than:
-            return None
-        best = int(clear[int(np.argmin(costs))])
-        controls = candidates[best]
-        self._memory = _Memory(state.stamp_ns, states[best], controls)
-        self._applied = controls[0].copy()
-        command = command_of(cfg, state.vector, controls[0])
-        return PlanStep(command, self._plan(state, states[best], controls), TickStatus.ESCAPE, reason, 0.0, 0,
-                        corners.shape[1], float(clearances[best]), False)
-
-    def _slow_motions(self, state: VehicleState) -> np.ndarray:
-        """(C, H, 2) controls: for each of thirteen turns from full left to full right, turning on the spot, creeping
-        at the escape speed while turning, and turning on the spot for a quarter or half of the horizon, then
-        creeping straight."""
-        cfg = self.config
-        horizon, dt = cfg.horizon, cfg.dt
-        full_turn = cfg.vehicle.max_yaw_rate if cfg.model is Model.UNICYCLE else cfg.vehicle.max_steer
-        creep = np.full(horizon, cfg.escape.speed)
-        profiles = [(np.zeros(horizon), np.ones(horizon)), (creep, np.ones(horizon))]
-        for turning in sorted({max(horizon // 4, 1), max(horizon // 2, 1)}):  # steps turning on the spot
-            profiles.append((np.r_[np.zeros(turning), creep[turning:]], np.r_[np.ones(turning), np.zeros(horizon - turning)]))
-        motions = []
-        for fraction in np.linspace(-1.0, 1.0, 13):
-            for target, turns in profiles:
-                speed, controls = state.speed, np.zeros((horizon, 2))
-                for k in range(horizon):
-                    accel = float(np.clip((target[k] - speed) / dt, -cfg.vehicle.max_decel, cfg.vehicle.max_accel))
-                    limit = float(turn_limit(cfg, np.array([speed]))[0])
-                    controls[k] = accel, np.clip(fraction * full_turn * turns[k], -limit, limit)
-                    speed += accel * dt
-                motions.append(controls)
-        return np.unique(np.round(np.stack(motions), 9), axis=0)
-
-    def _tracking_cost(self, states: np.ndarray) -> float:
-        """The plan's route-tracking terms of the problem's cost (lateral, heading, speed along the route, corridor)."""
-        cfg, w = self.config, self.config.weights
-        reference = self._reference(states, stale=False)
-        lateral = np.einsum("ki,ki->k", states[1:, :2] - reference.points, reference.normals)
-        heading = states[1:, 2] - reference.headings
-        along = states[1:, 3] * np.cos(heading)
-        factor = np.ones(cfg.horizon)
-        factor[-1] = w.terminal
-        outside = np.maximum(lateral - cfg.corridor_left, 0.0) + np.maximum(-lateral - cfg.corridor_right, 0.0)
-        return float(np.sum(factor * (w.lateral * lateral ** 2 + w.heading * heading ** 2
-                                      + w.speed * (along - reference.speeds) ** 2)) + cfg.corridor_gain * outside.sum())
 
     def _brake(self, state: VehicleState, reason: str, corners: np.ndarray | None = None,
                status: TickStatus = TickStatus.BRAKE) -> PlanStep:
