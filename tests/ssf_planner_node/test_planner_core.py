@@ -238,3 +238,14 @@ def test_pose_history_interpolates_across_skipped_scans():
     assert poses.at(600_000_000) is None and poses.at(0) is None
     poses.add(2_000_000_000, make_pose(20.0, 3.0, 0.0))
     assert poses.at(1_000_000_000) is None  # 1.6 s without odometry: nothing to bridge
+
+
+def test_a_car_already_closer_than_the_safety_distance_drives_off_without_coming_closer():
+    # a car stopped 0.02 m behind the bumper: with a hard bound of 0.1 m from the first step on, every plan would be
+    # infeasible (from rest the car gains 0.06 m in the first 0.2 s step), so it would brake there for good
+    gap = 0.02
+    behind = lambda t: boxes([[-4.69 - gap, 0.0]], [[4.69, 1.85]])  # noqa: E731
+    planner = planner_for([[0, 0], [200, 0]])
+    states, clearance, steps = drive(planner, (0.0, 0.0, 0.0, 0.0), 40, behind)
+    assert steps[0].status is TickStatus.SOLVED and states[-1, 0] > 5.0
+    assert clearance.min() >= gap - 1e-6  # it may keep its distance, never lose it

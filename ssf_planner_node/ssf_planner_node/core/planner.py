@@ -37,6 +37,9 @@ class VehicleState(NamedTuple):
         return np.array([self.x, self.y, self.yaw, self.speed], dtype=np.float64)
 
 
+HARD_MARGIN = 0.02  # m: a hard distance below the safety distance is this much under the present one
+
+
 class TickStatus(str, Enum):
     """How a tick's command came about."""
 
@@ -133,12 +136,14 @@ class RdaPlanner:
                                              cfg.obstacles.range)
         corners = corners[:, chosen]
         # 3. rounds of dual step (separating directions) and primal step (QP), until the plan settles
-        rounds, solution = 0, None
+        rounds, solution, hard = 0, None, None
         for rounds in range(1, cfg.solver.iterations + 1):
             planes = self._hyperplanes(nominal, corners)
+            if hard is None:  # never more than the car has now: one already closer may still move, but not closer
+                hard = np.minimum(cfg.obstacles.safety_distance, np.maximum(planes.distances[0] - HARD_MARGIN, 0.0))
             solution = self.problem.solve(state.vector, nominal, controls, reference, self._applied,
                                           planes.normals[1:], planes.offsets[1:],
-                                          cfg.obstacles.headway * planes.closing[1:])
+                                          cfg.obstacles.headway * planes.closing[1:], hard)
             if not solution.success:
                 break
             controls = solution.controls

@@ -124,9 +124,11 @@ class TrackingProblem:
         self._warm: dict[str, np.ndarray] | None = None
 
     def solve(self, start: np.ndarray, nominal_states: np.ndarray, nominal_controls: np.ndarray, reference: Reference,
-              previous_control: np.ndarray, normals: np.ndarray, offsets: np.ndarray, margins: np.ndarray) -> Solution:
+              previous_control: np.ndarray, normals: np.ndarray, offsets: np.ndarray, margins: np.ndarray,
+              safety: np.ndarray | None = None) -> Solution:
         """Solve for the plan from `start`, linearised along the nominal trajectory, with the given dual directions
-        (normals (H, K, 2), offsets (H, K) for steps 1..H) and extra soft distances (H, K) on top of comfort."""
+        (normals (H, K, 2), offsets (H, K) for steps 1..H), extra soft distances (H, K) on top of comfort and the
+        hard distance per obstacle slot (K,) (default: the safety distance)."""
         cfg, horizon, slots = self.config, self.horizon, self.slots
         parameters = np.concatenate([
             start, nominal_states.ravel(), nominal_controls.ravel(), reference.points.ravel(),
@@ -134,7 +136,8 @@ class TrackingProblem:
             normals[:, :, 0].ravel(), normals[:, :, 1].ravel(), offsets.ravel(),
         ])
         soft = cfg.obstacles.comfort_distance + margins.ravel()
-        lbx, ubx = self._bounds(nominal_states, soft)
+        hard = np.full(slots, cfg.obstacles.safety_distance) if safety is None else np.asarray(safety, dtype=np.float64)
+        lbx, ubx = self._bounds(nominal_states, soft, np.tile(hard, horizon))
         corridor_low = np.tile([-cfg.corridor_right, -np.inf], horizon)  # lateral + outside >= -right
         corridor_high = np.tile([np.inf, cfg.corridor_left], horizon)  # lateral - outside <= left
         lbg = np.r_[np.zeros(self._equalities), corridor_low, soft]
@@ -154,8 +157,8 @@ class TrackingProblem:
         slack = solution[n_x + n_u:n_x + n_u + horizon * slots].reshape(horizon, slots)
         return Solution(states, controls, slack, success, str(stats.get("return_status", "")))
 
-    def _bounds(self, nominal_states: np.ndarray, soft: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Speed, acceleration and turn limits (turn: at the nominal speed), slack within the hard safety bound."""
+    def _bounds(self, nominal_states: np.ndarray, soft: np.ndarray, hard: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Speed, acceleration and turn limits (turn: at the nominal speed), slack within the hard distance bound."""
         cfg, horizon, slots = self.config, self.horizon, self.slots
         state_low = np.tile([-np.inf, -np.inf, -np.inf, 0.0], (horizon + 1, 1))
         state_high = np.tile([np.inf, np.inf, np.inf, cfg.vehicle.max_speed], (horizon + 1, 1))
@@ -163,6 +166,6 @@ class TrackingProblem:
         turn = turn_limit(cfg, nominal_states[:-1, 3])
         control_low = np.stack([np.full(horizon, -cfg.vehicle.max_decel), -turn], axis=1)
         control_high = np.stack([np.full(horizon, cfg.vehicle.max_accel), turn], axis=1)
-        slack_high = soft - cfg.obstacles.safety_distance
+        slack_high = soft - hard
         return (np.r_[state_low.ravel(), control_low.ravel(), np.zeros(horizon * slots), np.zeros(horizon)],
                 np.r_[state_high.ravel(), control_high.ravel(), slack_high, np.full(horizon, np.inf)])
