@@ -125,7 +125,7 @@ class TrackingProblem:
 
     def solve(self, start: np.ndarray, nominal_states: np.ndarray, nominal_controls: np.ndarray, reference: Reference,
               previous_control: np.ndarray, normals: np.ndarray, offsets: np.ndarray, margins: np.ndarray,
-              safety: np.ndarray | None = None) -> Solution:
+              hard: np.ndarray | None = None) -> Solution:
         """Solve for the plan from `start`, linearised along the nominal trajectory, with the given dual directions
         (normals (H, K, 2), offsets (H, K) for steps 1..H), extra soft distances (H, K) on top of comfort and the
         hard distance per obstacle slot (K,) (default: the safety distance)."""
@@ -136,7 +136,7 @@ class TrackingProblem:
             normals[:, :, 0].ravel(), normals[:, :, 1].ravel(), offsets.ravel(),
         ])
         soft = cfg.obstacles.comfort_distance + margins.ravel()
-        hard = np.full(slots, cfg.obstacles.safety_distance) if safety is None else np.asarray(safety, dtype=np.float64)
+        hard = np.full(slots, cfg.obstacles.safety_distance) if hard is None else np.asarray(hard, dtype=np.float64)
         lbx, ubx = self._bounds(nominal_states, soft, np.tile(hard, horizon))
         corridor_low = np.tile([-cfg.corridor_right, -np.inf], horizon)  # lateral + outside >= -right
         corridor_high = np.tile([np.inf, cfg.corridor_left], horizon)  # lateral - outside <= left
