@@ -1,20 +1,24 @@
 """Navigation campaigns: seeded trial specs mapped over a local process pool or a Ray cluster, every finished trial
-appended to a JSONL file at once (Ctrl-C, a crash or a lost worker loses nothing; resume skips what is done)."""
+appended to a JSONL file at once (Ctrl-C, a crash or a lost worker loses nothing; resume skips what is done). Trials
+run in fresh worker processes with Open3D on one thread (`repeatable`), so a seeded trial gives the same record
+anywhere."""
 
 from __future__ import annotations
 
 import json
+import multiprocessing
 import os
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Protocol, TextIO
 
 from ssf_common.errors import ConfigError, DataError
 from ssf_eval.nav.loop import TrialRecord, TrialSpec, run_trial
+from ssf_eval.nav.repeatable import pool_worker, ray_attempt
 
 
 @dataclass(frozen=True)
@@ -83,18 +87,21 @@ class Runner(Protocol):
 
 @dataclass
 class LocalRunner:
-    """A process pool of `workers` (1: in this process)."""
+    """A pool of `workers` fresh processes, Open3D on one thread in each (`in_process`: in this process instead, for
+    trial functions a fresh process cannot import; Open3D's answers may then differ in the last bits from run to run)."""
 
     workers: int = 1
     trial: Callable[[TrialSpec], TrialRecord] = run_trial
+    in_process: bool = False
 
     def map(self, specs: list[TrialSpec]) -> Iterator[TrialRecord | TrialFailure]:
         """Trials on the pool, at most `workers` at a time; pending ones are cancelled on Ctrl-C."""
-        if self.workers <= 1:
+        if self.in_process:
             for spec in specs:
                 yield attempt(spec, self.trial)
             return
-        with ProcessPoolExecutor(max_workers=self.workers, initializer=_quiet_worker) as pool:
+        fresh = multiprocessing.get_context("spawn")  # a forked worker would have Open3D loaded already
+        with ProcessPoolExecutor(max_workers=max(self.workers, 1), mp_context=fresh, initializer=pool_worker) as pool:
             pending: set[Future] = set()
             queue = list(reversed(specs))
             try:
@@ -128,8 +135,13 @@ class RayRunner:
         if started_here:
             address = None if self.address == "local" else self.address
             ray.init(address=address, include_dashboard=False, log_to_driver=False, **self.options)
-        remote = ray.remote(num_cpus=1)(attempt)
-        pending = [remote.remote(spec, self.trial) for spec in specs]
+        if self.local_mode:  # in this process, as it is
+            remote = ray.remote(num_cpus=1)(attempt)
+            pending = [remote.remote(spec, self.trial) for spec in specs]
+        else:
+            remote = ray.remote(num_cpus=1)(ray_attempt)
+            trial = None if self.trial is run_trial else self.trial
+            pending = [remote.remote(asdict(spec), trial) for spec in specs]
         try:
             while pending:
                 done, pending = ray.wait(pending, num_returns=1)
@@ -194,14 +206,6 @@ def run_campaign(specs: list[TrialSpec], log: TrialLog, runner: Runner, out: Tex
         finished[record.key] = record
         progress.update(record)
     return [finished[spec.key] for spec in specs if spec.key in finished]
-
-
-def _quiet_worker() -> None:
-    """Pool workers: one BLAS/OpenMP thread each, and Ctrl-C is the parent's to handle."""
-    import signal
-
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 
 def _clock(seconds: float) -> str:
