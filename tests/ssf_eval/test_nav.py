@@ -238,8 +238,6 @@ def test_scenario_settings_reach_the_world_and_key_the_trial(capsys):
     assert "agents.ego_yield" in capsys.readouterr().err
 
 
-
-
 ICP_TEN_TIMES = """
 import os
 from ssf_eval.nav.repeatable import load_open3d_on_one_thread
