@@ -9,7 +9,7 @@ from ssf_common.config import build
 from ssf_common.errors import ConfigError
 from ssf_common.geometry.boxes import box_corners
 from ssf_common.records import ObstacleKind, Obstacles
-from ssf_planner_node.core.avoidance import separation
+from ssf_planner_node.core.avoidance import hyperplanes, separation
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.planner import RdaPlanner, TickStatus, VehicleState
 from ssf_planner_node.core.route import Route
@@ -249,3 +249,33 @@ def test_a_car_already_closer_than_the_safety_distance_drives_off_without_coming
     states, clearance, steps = drive(planner, (0.0, 0.0, 0.0, 0.0), 40, behind)
     assert steps[0].status is TickStatus.SOLVED and states[-1, 0] > 5.0
     assert clearance.min() >= gap - 1e-6  # it may keep its distance, never lose it
+
+
+def test_a_box_already_overlapping_the_car_lets_it_drive_out_but_not_deeper():
+    # a conservative still box (a parked car seen a little too wide) overlaps the car's side by 0.04 m; the car itself
+    # never touched it. A hard bound of at least 0 would ask for more than the car has: every plan infeasible, stuck
+    overlap = 0.04
+    width = planner_for([[0, 0], [1, 0]]).config.vehicle.width
+    beside = lambda t: boxes([[-1.0, 0.5 * width + 0.5 * 1.85 - overlap]], [[4.69, 1.85]])  # noqa: E731
+    planner = planner_for([[0, 0], [200, 0]])
+    states, clearance, steps = drive(planner, (0.0, 0.0, 0.0, 0.0), 40, beside)
+    assert steps[0].status is TickStatus.SOLVED and states[-1, 0] > 5.0
+    assert clearance.min() >= -overlap - 1e-6  # out, never deeper in
+    assert planner.stats.fallbacks == 0
+
+
+def test_the_distance_bound_is_exact_to_first_order_in_position_and_heading():
+    rng = np.random.default_rng(4)
+    length, width = 4.69, 1.85
+    for _ in range(20):
+        xy, yaw = rng.uniform(-1, 1, 2), rng.uniform(-np.pi, np.pi)
+        box = box_corners(np.array([rng.uniform(4, 6), rng.uniform(-3, 3)]), 4.5, 1.8, rng.uniform(-np.pi, np.pi))
+        planes = hyperplanes(xy[None], np.array([yaw]), np.zeros(1), length, width, box[None, None], 1)
+        normal = planes.normals[0, 0]
+        for step in (1e-2, 1e-3):
+            moved_xy, moved_yaw = xy + step * rng.standard_normal(2), yaw + step * rng.standard_normal()
+            ego = box_corners(moved_xy, length, width, moved_yaw)
+            # the true distance along the fixed normal, against the bound's prediction from the binding corners
+            true = (ego @ normal).min() - (box @ normal).max()
+            predicted = (normal @ moved_xy + planes.yaw_gains[0, 0] * moved_yaw - planes.offsets[0, 0]).min()
+            assert abs(predicted - true) <= 10.0 * step ** 2

@@ -6,7 +6,10 @@ G^T mu + R^T A^T lambda = 0 of lambda^T (A p - b) - g^T mu) has a closed-form op
 direction that separates the two shapes the most, i.e. the direction between their closest points (or, when they
 overlap, the axis of least penetration), and its value is their signed distance. With n fixed, the distance bound
 is linear in the ego position: n . p >= h_O(n) + h_R(yaw, n) + d, where h_O and h_R are the support functions of
-obstacle and footprint. That is what the primal problem constrains; the dual step recomputes n from the new plan."""
+obstacle and footprint. That is what the primal problem constrains; the dual step recomputes n from the new plan.
+The footprint's support depends on the heading too (a car turning away swings its rear the other way), so the bound
+is kept per footprint corner, n . (p + R(yaw) c) >= h_O(n) + d, linearised in yaw at the planned heading, for the
+BINDING_CORNERS corners nearest the obstacle along n (two: a side-on car's nearest side has two equal corners)."""
 
 from __future__ import annotations
 
@@ -18,13 +21,16 @@ from ssf_common.geometry.boxes import boxes_corners
 from ssf_common.records import Obstacles
 
 INACTIVE_OFFSET = -1.0e4  # n = 0, offset far below: the constraint of an empty slot always holds
+BINDING_CORNERS = 2  # footprint corners per obstacle and step whose distance bound the primal problem keeps
 
 
 class Hyperplanes(NamedTuple):
-    """Per horizon step and obstacle slot: unit normal n (T, K, 2), offset c (T, K), current distance (T, K) and the
-    ego's speed towards the obstacle (T, K); the ego position p must satisfy n . p >= c + d to keep distance d."""
+    """Per horizon step and obstacle slot: unit normal n (T, K, 2), per binding corner a yaw gain g (T, K, C) and
+    offset c (T, K, C), current distance (T, K) and the ego's speed towards the obstacle (T, K); the ego position p
+    and heading yaw must satisfy n . p + g yaw >= c + d for every corner to keep distance d."""
 
     normals: np.ndarray
+    yaw_gains: np.ndarray
     offsets: np.ndarray
     distances: np.ndarray
     closing: np.ndarray
@@ -116,18 +122,24 @@ def hyperplanes(ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_speed: np.ndarray, 
     planned footprint and the predicted obstacle, as a constraint on the ego position (padded to `slots`)."""
     steps, count = len(ego_xy), corners.shape[1]
     normals = np.zeros((steps, slots, 2))
-    offsets = np.full((steps, slots), INACTIVE_OFFSET)
+    yaw_gains = np.zeros((steps, slots, BINDING_CORNERS))
+    offsets = np.full((steps, slots, BINDING_CORNERS), INACTIVE_OFFSET)
     distances = np.full((steps, slots), np.inf)
     closing = np.zeros((steps, slots))
     if count:
         ego = footprint_corners(ego_xy, ego_yaw, length, width)
         normal, distance = separation(np.broadcast_to(ego[:, None], corners.shape), corners)
-        # n . p - h_R(-n) - h_O(n) >= d, with h_R of the footprint at the planned heading, centred on p
-        ego_support = np.einsum("tvi,tmi->tmv", ego - ego_xy[:, None, :], -normal).max(axis=-1)
+        # per corner o = R(yaw) c: n . p + n . o(yaw) >= h_O(n) + d, with n . o linearised in yaw at the planned one
+        arms = ego - ego_xy[:, None, :]  # (T, 4, 2)
+        reach = np.einsum("tvi,tmi->tmv", arms, normal)  # n . o per corner (T, M, 4)
+        turn = np.einsum("tvi,tmi->tmv", np.stack([-arms[..., 1], arms[..., 0]], axis=-1), normal)  # d(n . o)/dyaw
+        binding = np.argsort(reach, axis=-1, kind="stable")[..., :BINDING_CORNERS]  # nearest the obstacle first
+        reach, turn = np.take_along_axis(reach, binding, axis=-1), np.take_along_axis(turn, binding, axis=-1)
         obstacle_support = np.einsum("tmvi,tmi->tmv", corners, normal).max(axis=-1)
         normals[:, :count] = normal
-        offsets[:, :count] = obstacle_support + ego_support
+        yaw_gains[:, :count] = turn
+        offsets[:, :count] = obstacle_support[..., None] - reach + turn * np.asarray(ego_yaw)[:, None, None]
         distances[:, :count] = distance
         heading = np.stack([np.cos(ego_yaw), np.sin(ego_yaw)], axis=1)
         closing[:, :count] = np.maximum(-np.einsum("tmi,ti->tm", normal, heading), 0.0) * np.maximum(ego_speed, 0.0)[:, None]
-    return Hyperplanes(normals, offsets, distances, closing)
+    return Hyperplanes(normals, yaw_gains, offsets, distances, closing)

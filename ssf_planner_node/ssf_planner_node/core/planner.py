@@ -37,7 +37,16 @@ class VehicleState(NamedTuple):
         return np.array([self.x, self.y, self.yaw, self.speed], dtype=np.float64)
 
 
-HARD_MARGIN = 0.02  # m: a hard distance below the safety distance is this much under the present one
+HARD_MARGIN = 0.02  # m: a hard distance below the safety distance is this much under the present one (negative
+# when a conservative box already overlaps the car: it may move, but not deeper)
+
+
+class _Candidate(NamedTuple):
+    """A round's plan that keeps clear of the obstacles: states, controls, smallest distance to them."""
+
+    states: np.ndarray
+    controls: np.ndarray
+    clearance: float
 
 
 class TickStatus(str, Enum):
@@ -135,14 +144,16 @@ class RdaPlanner:
         chosen = avoidance.nearest_obstacles(corners, nominal[:, :2], self._ego_radius, cfg.obstacles.max_obstacles,
                                              cfg.obstacles.range)
         corners = corners[:, chosen]
-        # 3. rounds of dual step (separating directions) and primal step (QP), until the plan settles
-        rounds, solution, hard = 0, None, None
+        # 3. rounds of dual step (separating directions) and primal step (QP), until the plan settles; the QP holds
+        # the footprint's orientation at the nominal one, so each round's plan is checked against the true shapes and
+        # the last one that keeps clear is taken
+        rounds, solution, hard, clear = 0, None, None, None
         for rounds in range(1, cfg.solver.iterations + 1):
             planes = self._hyperplanes(nominal, corners)
             if hard is None:  # never more than the car has now: one already closer may still move, but not closer
-                hard = np.minimum(cfg.obstacles.safety_distance, np.maximum(planes.distances[0] - HARD_MARGIN, 0.0))
+                hard = self._hard_distances(planes.distances[0])
             solution = self.problem.solve(state.vector, nominal, controls, reference, self._applied,
-                                          planes.normals[1:], planes.offsets[1:],
+                                          planes.normals[1:], planes.yaw_gains[1:], planes.offsets[1:],
                                           cfg.obstacles.headway * planes.closing[1:], hard)
             if not solution.success:
                 break
@@ -150,20 +161,23 @@ class RdaPlanner:
             settled = rollout(self._trajectory, state.vector, controls)
             moved = float(np.linalg.norm(settled[:, :2] - nominal[:, :2], axis=1).max())
             nominal = settled
+            clearance, intrusion = self._clearance(nominal, corners)
+            if intrusion >= 0.0:
+                clear = _Candidate(nominal, controls, clearance)
             reference = self._reference(nominal, stale)
             if moved < cfg.solver.tolerance:
                 break
         elapsed_ms = (time.perf_counter() - started) * 1e3
-        if solution is None or not solution.success:
+        if clear is None and (solution is None or not solution.success):
             reason = f"solver failed ({solution.status if solution else 'no solution'})"
             return self._finish(self._fallback(state, corners, reason), started, rounds, len(chosen), done)
         if cfg.solver.deadline_ms and elapsed_ms > cfg.solver.deadline_ms:
             return self._finish(self._fallback(state, corners, f"late ({elapsed_ms:.0f} ms)"), started, rounds,
                                 len(chosen), done)
-        clearance = self._clearance(nominal, corners)
-        if clearance < 0.0:
+        if clear is None:
             return self._finish(self._fallback(state, corners, f"plan collides ({clearance:.2f} m)"), started, rounds,
                                 len(chosen), done)
+        nominal, controls, clearance = clear
         self._memory = _Memory(state.stamp_ns, nominal, controls)
         command = command_of(cfg, state.vector, controls[0])
         if done:
@@ -215,11 +229,20 @@ class RdaPlanner:
         return avoidance.hyperplanes(nominal[:, :2], nominal[:, 2], nominal[:, 3], cfg.vehicle.length,
                                      cfg.vehicle.width, corners, cfg.obstacles.max_obstacles)
 
-    def _clearance(self, states: np.ndarray, corners: np.ndarray) -> float:
-        """Smallest distance between the planned footprints (steps 1..H) and the predicted obstacles."""
+    def _hard_distances(self, now: np.ndarray) -> np.ndarray:
+        """Per obstacle slot, the distance no plan may go under: the safety distance, or a little under the present
+        one for an obstacle already closer (negative for a box that already overlaps the car)."""
+        return np.minimum(self.config.obstacles.safety_distance, now - HARD_MARGIN)
+
+    def _clearance(self, states: np.ndarray, corners: np.ndarray) -> tuple[float, float]:
+        """Smallest distance between the planned footprints (steps 1..H) and the predicted obstacles, and the smallest
+        margin to a collision: distance 0, or deeper than the hard distance for a box already overlapping the car
+        (negative: the plan collides)."""
         if corners.shape[1] == 0:
-            return float("inf")
-        return float(self._hyperplanes(states, corners).distances[1:].min())
+            return float("inf"), float("inf")
+        distances = self._hyperplanes(states, corners).distances
+        floor = np.minimum(self._hard_distances(distances[0]), 0.0)
+        return float(distances[1:].min()), float((distances[1:] - floor).min())
 
     def _fallback(self, state: VehicleState, corners: np.ndarray, reason: str) -> PlanStep:
         """The previous plan shifted to now while it stays clear of the obstacles; else brake."""
@@ -229,8 +252,8 @@ class RdaPlanner:
             if 0.0 <= elapsed < self.config.horizon * self.config.dt - self.config.control_period:
                 controls = self._warm_controls(state)
                 states = rollout(self._trajectory, state.vector, controls)
-                clearance = self._clearance(states, corners)
-                if clearance >= 0.0:
+                clearance, intrusion = self._clearance(states, corners)
+                if intrusion >= 0.0:
                     command = command_of(self.config, state.vector, controls[0])
                     self._applied = controls[0].copy()
                     return PlanStep(command, self._plan(state, states, controls), TickStatus.SHIFTED, reason, 0.0, 0,
@@ -248,7 +271,7 @@ class RdaPlanner:
         self._applied = np.zeros(2)
         self._memory = None
         command = Command(max(state.speed - cfg.vehicle.max_decel * cfg.control_period, 0.0), 0.0)
-        clearance = self._clearance(states, corners) if corners is not None else float("inf")
+        clearance = self._clearance(states, corners)[0] if corners is not None else float("inf")
         return PlanStep(command, self._plan(state, states, controls), status, reason, 0.0, 0,
                         0 if corners is None else corners.shape[1], clearance, False)
 

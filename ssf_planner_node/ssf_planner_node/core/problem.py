@@ -11,6 +11,7 @@ import casadi as ca
 import numpy as np
 
 from ssf_common.errors import ConfigError
+from ssf_planner_node.core.avoidance import BINDING_CORNERS
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.models import CONTROL_SIZE, STATE_SIZE, discrete_step, turn_limit
 
@@ -55,7 +56,8 @@ def progress(state: ca.SX, nominal: ca.SX, heading: ca.SX) -> ca.SX:
 class TrackingProblem:
     """min tracking + effort + smoothness + slack_gain * slack + corridor_gain * outside, s.t. linearised kinematics,
     limits, the corridor widened by outside >= 0 (a car already outside it steers back instead of finding no plan),
-    and n . p_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot and step)."""
+    and n . p_k + g yaw_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot, step and
+    binding footprint corner)."""
 
     def __init__(self, config: PlannerConfig) -> None:
         if config.solver.qp not in QP_SOLVERS:
@@ -85,7 +87,8 @@ class TrackingProblem:
         previous = ca.SX.sym("u_prev", CONTROL_SIZE)
         normals_x = ca.SX.sym("nx", slots, horizon)
         normals_y = ca.SX.sym("ny", slots, horizon)
-        offsets = ca.SX.sym("c", slots, horizon)
+        yaw_gains = [ca.SX.sym(f"g{c}", slots, horizon) for c in range(BINDING_CORNERS)]
+        offsets = [ca.SX.sym(f"c{c}", slots, horizon) for c in range(BINDING_CORNERS)]
 
         x_bar, u_bar = ca.SX.sym("xb", STATE_SIZE), ca.SX.sym("ub", CONTROL_SIZE)
         next_bar = self.step(x_bar, u_bar)
@@ -110,13 +113,14 @@ class TrackingProblem:
         distance = []
         for k in range(horizon):
             for m in range(slots):
-                distance.append(normals_x[m, k] * states[0, k + 1] + normals_y[m, k] * states[1, k + 1]
-                                + slack[m, k] - offsets[m, k])
+                for gain, offset in zip(yaw_gains, offsets):
+                    distance.append(normals_x[m, k] * states[0, k + 1] + normals_y[m, k] * states[1, k + 1]
+                                    + gain[m, k] * states[2, k + 1] + slack[m, k] - offset[m, k])
         cost += cfg.obstacles.slack_gain * ca.sum1(ca.vec(slack)) + cfg.corridor_gain * ca.sum2(outside)
         self._equalities = STATE_SIZE * (horizon + 1)
         variables = ca.veccat(states, controls, slack, outside)
         parameters = ca.veccat(start, nominal_x, nominal_u, ref_points, ref_normals, ref_headings, ref_speeds, previous,
-                               normals_x, normals_y, offsets)
+                               normals_x, normals_y, *yaw_gains, *offsets)
         self._sizes = (STATE_SIZE * (horizon + 1), CONTROL_SIZE * horizon, slots * horizon)
         problem = {"x": variables, "p": parameters, "f": cost, "g": ca.vertcat(*constraints, *corridor, *distance)}
         options = {"error_on_fail": False, **QUIET[cfg.solver.qp]}
@@ -124,24 +128,26 @@ class TrackingProblem:
         self._warm: dict[str, np.ndarray] | None = None
 
     def solve(self, start: np.ndarray, nominal_states: np.ndarray, nominal_controls: np.ndarray, reference: Reference,
-              previous_control: np.ndarray, normals: np.ndarray, offsets: np.ndarray, margins: np.ndarray,
+              previous_control: np.ndarray, normals: np.ndarray, yaw_gains: np.ndarray, offsets: np.ndarray,
+              margins: np.ndarray,
               hard: np.ndarray | None = None) -> Solution:
         """Solve for the plan from `start`, linearised along the nominal trajectory, with the given dual directions
-        (normals (H, K, 2), offsets (H, K) for steps 1..H), extra soft distances (H, K) on top of comfort and the
+        (normals (H, K, 2), yaw gains and offsets (H, K, C) of the binding corners for steps 1..H), extra soft distances (H, K) on top of comfort and the
         hard distance per obstacle slot (K,) (default: the safety distance)."""
         cfg, horizon, slots = self.config, self.horizon, self.slots
         parameters = np.concatenate([
             start, nominal_states.ravel(), nominal_controls.ravel(), reference.points.ravel(),
             reference.normals.ravel(), reference.headings, reference.speeds, previous_control,
-            normals[:, :, 0].ravel(), normals[:, :, 1].ravel(), offsets.ravel(),
+            normals[:, :, 0].ravel(), normals[:, :, 1].ravel(),
+            *(yaw_gains[:, :, c].ravel() for c in range(BINDING_CORNERS)), *(offsets[:, :, c].ravel() for c in range(BINDING_CORNERS)),
         ])
         soft = cfg.obstacles.comfort_distance + margins.ravel()
         hard = np.full(slots, cfg.obstacles.safety_distance) if hard is None else np.asarray(hard, dtype=np.float64)
         lbx, ubx = self._bounds(nominal_states, soft, np.tile(hard, horizon))
         corridor_low = np.tile([-cfg.corridor_right, -np.inf], horizon)  # lateral + outside >= -right
         corridor_high = np.tile([np.inf, cfg.corridor_left], horizon)  # lateral - outside <= left
-        lbg = np.r_[np.zeros(self._equalities), corridor_low, soft]
-        ubg = np.r_[np.zeros(self._equalities), corridor_high, np.full(horizon * slots, np.inf)]
+        lbg = np.r_[np.zeros(self._equalities), corridor_low, np.repeat(soft, BINDING_CORNERS)]
+        ubg = np.r_[np.zeros(self._equalities), corridor_high, np.full(horizon * slots * BINDING_CORNERS, np.inf)]
         guess = self._warm or {}
         result = self.solver(p=parameters, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg,
                              x0=np.r_[nominal_states.ravel(), nominal_controls.ravel(), np.zeros(horizon * (slots + 1))],
