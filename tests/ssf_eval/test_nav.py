@@ -15,7 +15,9 @@ import pytest
 from ssf_common.errors import ConfigError
 
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
-from ssf_eval.nav.loop import PERCEPTION_NAMES, ClosedLoop, DelayLine, TrialOutcome, TrialRecord, TrialSpec
+from sim_bridge.agents import AgentKind
+from ssf_eval.nav.loop import (PERCEPTION_NAMES, ClosedLoop, DelayLine, TrialOutcome, TrialRecord, TrialSpec,
+                               standing_ahead)
 from ssf_eval.nav.stats import barn_score, summarise, wilson_interval
 
 LIGHT = {"lidar.columns": 256, "lidar.beams": 32}  # a lighter LiDAR keeps the trials quick
@@ -82,6 +84,27 @@ def test_a_busy_graph_perceives_every_nth_scan_and_the_pose_moves_on_between():
     assert len(loop.ssf_pose.scans.iterations) == 10  # pairs (2, 3), (5, 6), ... (29, 30): one in three
     assert loop.ssf_pose.odometry.steps == 10 and max(loop.pose_errors) < 0.3
     assert ticks[-1].state.speed > 1.0  # it drives: the late pose is carried forward by the commands sent
+
+
+def test_a_stuck_trial_counts_the_vehicles_standing_in_the_lane_ahead():
+    loop = ClosedLoop(TrialSpec("gt", 50, 100, 20.0, 20.0))
+    traffic, ego = loop.sim.traffic, loop.sim.ego.state
+    line, lane = loop.sim.world.centreline, loop.sim.lane_offset
+    ego_s = float(line.to_frenet(np.array([[ego.x, ego.y]]))[0][0])
+    vehicles = np.flatnonzero(traffic.kind == AgentKind.VEHICLE)
+    traffic.position[:, :2] = line.to_xy(np.full(len(traffic.kind), ego_s - 60.0), np.zeros(len(traffic.kind)))
+    queue, moving, beside = vehicles[:3], vehicles[3], vehicles[4]  # a queue of three, one driving, one next lane
+    traffic.position[queue] = line.to_xy(ego_s + np.array([8.0, 15.0, 22.0]), np.full(3, lane))
+    traffic.position[moving] = line.to_xy(np.array(ego_s + 12.0), np.array(lane))
+    traffic.position[beside] = line.to_xy(np.array(ego_s + 10.0), np.array(-lane))
+    traffic.velocity[:] = 0.0
+    traffic.velocity[moving] = [3.0, 0.0]
+    assert standing_ahead(loop.sim) == 3 and standing_ahead(loop.sim, reach=10.0) == 1
+    traffic.velocity[queue] = [2.0, 0.0]  # the queue moves off
+    assert standing_ahead(loop.sim) == 0
+    stuck = replace(fake_trial(TrialSpec("gt", 50, 1)), outcome="stuck")
+    (cell,) = summarise([replace(stuck, standing_ahead=3), replace(stuck, standing_ahead=1), stuck])
+    assert (cell.stuck, cell.queued) == (3, 1)
 
 
 def test_cells_keep_the_pose_sources_apart():

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from sim_bridge.agents import AgentKind
 from sim_bridge.ego import Outcome, VelocityCommand
 from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Simulator
@@ -34,6 +35,9 @@ PERCEPTION_NAMES = ("gt", "dbscan", "dbscan0", "ssf", "follower")
 POSE_SOURCES = ("gt", "ssf")  # the ego pose from the simulator's ground truth or from SSF odometry
 STUCK_WINDOW_S = 45.0  # no progress of STUCK_PROGRESS_M along the route in this long: stuck
 STUCK_PROGRESS_M = 2.0
+QUEUE_REACH_M = 30.0  # a stuck or timed-out trial counts the vehicles standing in the route's lane this far ahead
+STANDING_SPEED = 0.5  # m/s: slower is standing
+QUEUE_MIN = 2  # that many standing there: the car is behind a queue, not stuck on its own
 
 
 class TrialOutcome(str, Enum):
@@ -101,6 +105,7 @@ class TrialRecord:
     pose: str = "gt"
     pose_error_median_m: float = 0.0  # with --pose ssf: |estimated - true| ego position over the trial
     pose_error_max_m: float = 0.0
+    standing_ahead: int | None = None  # stuck or timed out: vehicles standing in the route's lane in the 30 m ahead
 
     @property
     def success(self) -> bool:
@@ -271,7 +276,9 @@ class ClosedLoop:
             solve_ms_p95=_stat(self.solve_ms, 95), solve_ms_max=_stat(self.solve_ms, 100),
             perception_ms_median=_stat(self.perceive_ms, 50), step_ms_median=_stat(self.step_ms, 50),
             wall_s=round(time.perf_counter() - started, 1), pose=spec.pose,
-            pose_error_median_m=_stat(self.pose_errors, 50), pose_error_max_m=_stat(self.pose_errors, 100))
+            pose_error_median_m=_stat(self.pose_errors, 50), pose_error_max_m=_stat(self.pose_errors, 100),
+            standing_ahead=standing_ahead(self.sim) if self.outcome in (TrialOutcome.STUCK, TrialOutcome.TIMEOUT)
+            else None)
 
 
 def run_trial(spec: TrialSpec) -> TrialRecord:
@@ -309,6 +316,20 @@ def _judge(sim: Simulator, frame, route: Route, world_to_odom: np.ndarray, time_
     elif status.time - progress[-1][0] >= STUCK_WINDOW_S:
         return TrialOutcome.STUCK
     return None
+
+
+def standing_ahead(sim: Simulator, reach: float = QUEUE_REACH_M) -> int:
+    """Vehicles standing in the route's lane within `reach` metres ahead of the ego: a queue no planner keeping to
+    the road passes (0: the road ahead moves, the car is stuck on its own)."""
+    agents = sim.traffic.states()
+    ego = sim.ego.state
+    line, section = sim.world.centreline, sim.world.section
+    ego_s, _ = line.to_frenet(np.array([[ego.x, ego.y]]))
+    s, d = line.to_frenet(agents.position[:, :2])
+    lane_half = 0.5 * section.road_edge / len(section.lane_centres)
+    standing = ((agents.kind == AgentKind.VEHICLE) & (np.linalg.norm(agents.velocity, axis=1) < STANDING_SPEED)
+                & (s > ego_s[0]) & (s < ego_s[0] + reach) & (np.abs(d - sim.lane_offset) < lane_half))
+    return int(standing.sum())
 
 
 def _stat(values: list[float], percentile: float) -> float:

@@ -7,7 +7,7 @@ from collections import Counter
 from dataclasses import asdict, dataclass
 from typing import Any, Iterable
 
-from ssf_eval.nav.loop import TrialOutcome, TrialRecord
+from ssf_eval.nav.loop import QUEUE_MIN, TrialOutcome, TrialRecord
 
 Z95 = 1.959963984540054
 
@@ -50,6 +50,7 @@ class CellSummary:
     collisions_by_kind: dict[str, int]
     timeouts: int
     stuck: int
+    queued: int  # of the stuck and timed-out trials, those behind vehicles standing in the route's lane
     barn_score: float
     min_clearance_m_median: float
     path_length_m_mean: float
@@ -91,6 +92,7 @@ def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], refere
         average_speed_mps=_mean([row.average_speed_mps for row in won]),
         collisions=sum(collisions.values()), collisions_by_kind=collisions,
         timeouts=outcomes[TrialOutcome.TIMEOUT.value], stuck=outcomes[TrialOutcome.STUCK.value],
+        queued=sum(row.standing_ahead is not None and row.standing_ahead >= QUEUE_MIN for row in rows),
         barn_score=round(sum(barn_score(row.success, row.route_length_m, row.navigation_time_s, reference_speed)
                              for row in rows) / len(rows), 4),
         min_clearance_m_median=round(_median([row.min_clearance_m for row in rows]), 3),
