@@ -9,7 +9,9 @@ is linear in the ego position: n . p >= h_O(n) + h_R(yaw, n) + d, where h_O and 
 obstacle and footprint. That is what the primal problem constrains; the dual step recomputes n from the new plan.
 The footprint's support depends on the heading too (a car turning away swings its rear the other way), so the bound
 is kept per footprint corner, n . (p + R(yaw) c) >= h_O(n) + d, linearised in yaw at the planned heading, for the
-BINDING_CORNERS corners nearest the obstacle along n (two: a side-on car's nearest side has two equal corners)."""
+BINDING_CORNERS corners nearest the obstacle along n (two: a side-on car's nearest side has two equal corners). The
+primal problem keeps the bound at the planned heading as well, so that a turn may cost distance but never buys it (a
+linearised turn that seems to buy it would let the car spin in place away from a box)."""
 
 from __future__ import annotations
 

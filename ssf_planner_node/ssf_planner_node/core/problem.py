@@ -56,8 +56,9 @@ def progress(state: ca.SX, nominal: ca.SX, heading: ca.SX) -> ca.SX:
 class TrackingProblem:
     """min tracking + effort + smoothness + slack_gain * slack + corridor_gain * outside, s.t. linearised kinematics,
     limits, the corridor widened by outside >= 0 (a car already outside it steers back instead of finding no plan),
-    and n . p_k + g yaw_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot, step and
-    binding footprint corner)."""
+    and n . p_k + e_k >= c_k + comfort with 0 <= e_k <= comfort - safety (for each obstacle slot and step: at the
+    planned heading, and for each binding footprint corner with its heading term, so that turning may cost distance
+    but never buys it)."""
 
     def __init__(self, config: PlannerConfig) -> None:
         if config.solver.qp not in QP_SOLVERS:
@@ -113,9 +114,11 @@ class TrackingProblem:
         distance = []
         for k in range(horizon):
             for m in range(slots):
+                position = normals_x[m, k] * states[0, k + 1] + normals_y[m, k] * states[1, k + 1] + slack[m, k]
+                # at the planned heading (turning never buys distance) and, per binding corner, turning that costs it
+                distance.append(position + yaw_gains[0][m, k] * nominal_x[2, k + 1] - offsets[0][m, k])
                 for gain, offset in zip(yaw_gains, offsets):
-                    distance.append(normals_x[m, k] * states[0, k + 1] + normals_y[m, k] * states[1, k + 1]
-                                    + gain[m, k] * states[2, k + 1] + slack[m, k] - offset[m, k])
+                    distance.append(position + gain[m, k] * states[2, k + 1] - offset[m, k])
         cost += cfg.obstacles.slack_gain * ca.sum1(ca.vec(slack)) + cfg.corridor_gain * ca.sum2(outside)
         self._equalities = STATE_SIZE * (horizon + 1)
         variables = ca.veccat(states, controls, slack, outside)
@@ -146,8 +149,9 @@ class TrackingProblem:
         lbx, ubx = self._bounds(nominal_states, soft, np.tile(hard, horizon))
         corridor_low = np.tile([-cfg.corridor_right, -np.inf], horizon)  # lateral + outside >= -right
         corridor_high = np.tile([np.inf, cfg.corridor_left], horizon)  # lateral - outside <= left
-        lbg = np.r_[np.zeros(self._equalities), corridor_low, np.repeat(soft, BINDING_CORNERS)]
-        ubg = np.r_[np.zeros(self._equalities), corridor_high, np.full(horizon * slots * BINDING_CORNERS, np.inf)]
+        rows = 1 + BINDING_CORNERS  # per obstacle slot and step
+        lbg = np.r_[np.zeros(self._equalities), corridor_low, np.repeat(soft, rows)]
+        ubg = np.r_[np.zeros(self._equalities), corridor_high, np.full(horizon * slots * rows, np.inf)]
         guess = self._warm or {}
         result = self.solver(p=parameters, lbx=lbx, ubx=ubx, lbg=lbg, ubg=ubg,
                              x0=np.r_[nominal_states.ravel(), nominal_controls.ravel(), np.zeros(horizon * (slots + 1))],
