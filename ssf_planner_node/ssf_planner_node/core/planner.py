@@ -147,11 +147,10 @@ class RdaPlanner:
         # 3. rounds of dual step (separating directions) and primal step (QP), until the plan settles; the QP holds
         # the footprint's orientation at the nominal one, so each round's plan is checked against the true shapes and
         # the last one that keeps clear is taken
-        rounds, solution, hard, clear = 0, None, None, None
+        planes = self._hyperplanes(nominal, corners)
+        hard = self._hard_distances(planes.distances[0])  # never more than the car has now: one closer may still move
+        rounds, solution, clear = 0, None, None
         for rounds in range(1, cfg.solver.iterations + 1):
-            planes = self._hyperplanes(nominal, corners)
-            if hard is None:  # never more than the car has now: one already closer may still move, but not closer
-                hard = self._hard_distances(planes.distances[0])
             solution = self.problem.solve(state.vector, nominal, controls, reference, self._applied,
                                           planes.normals[1:], planes.yaw_gains[1:], planes.offsets[1:],
                                           cfg.obstacles.headway * planes.closing[1:], hard)
@@ -161,7 +160,8 @@ class RdaPlanner:
             settled = rollout(self._trajectory, state.vector, controls)
             moved = float(np.linalg.norm(settled[:, :2] - nominal[:, :2], axis=1).max())
             nominal = settled
-            clearance, intrusion = self._clearance(nominal, corners)
+            planes = self._hyperplanes(nominal, corners)  # the next round's dual step, and the check of this plan
+            clearance, intrusion = self._margins(planes.distances)
             if intrusion >= 0.0:
                 clear = _Candidate(nominal, controls, clearance)
             reference = self._reference(nominal, stale)
@@ -240,7 +240,10 @@ class RdaPlanner:
         (negative: the plan collides)."""
         if corners.shape[1] == 0:
             return float("inf"), float("inf")
-        distances = self._hyperplanes(states, corners).distances
+        return self._margins(self._hyperplanes(states, corners).distances)
+
+    def _margins(self, distances: np.ndarray) -> tuple[float, float]:
+        """`_clearance` from the distances (T, K) of a plan's footprints (step 0: now) to the obstacles."""
         floor = np.minimum(self._hard_distances(distances[0]), 0.0)
         return float(distances[1:].min()), float((distances[1:] - floor).min())
 
