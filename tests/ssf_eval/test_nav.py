@@ -261,6 +261,17 @@ def test_scenario_settings_reach_the_world_and_key_the_trial(capsys):
     assert "agents.ego_yield" in capsys.readouterr().err
 
 
+def test_the_planner_keeps_to_the_lanes_of_the_routes_direction():
+    """The corridor comes from the simulated road: the body between the centre line and the road edge."""
+    width = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0)).planner.config.vehicle.width
+    inner = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0)).planner.config  # two 3.5 m lanes, the inner one
+    assert (inner.corridor_left, inner.corridor_right) == pytest.approx((1.75 - width / 2, 5.25 - width / 2))
+    outer = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0, scenario={"ego.lane": 1})).planner.config
+    assert (outer.corridor_left, outer.corridor_right) == pytest.approx((5.25 - width / 2, 1.75 - width / 2))
+    told = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0, planner={"corridor_left": 3.5})).planner.config
+    assert told.corridor_left == 3.5  # -p still overrides
+
+
 ICP_TEN_TIMES = """
 import os
 from ssf_eval.nav.repeatable import load_open3d_on_one_thread

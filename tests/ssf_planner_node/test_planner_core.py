@@ -77,6 +77,16 @@ def test_a_car_outside_the_corridor_steers_back_instead_of_braking():
     assert abs(states[-1, 1]) < 0.2 and states[-1, 3] > 9.0
 
 
+def test_pressed_by_a_long_vehicle_on_the_right_the_car_keeps_off_the_oncoming_lane():
+    """issue 11: swerves into the oncoming lane ended nose to nose with oncoming traffic (dead ends at 1000 agents); the
+    default corridor keeps the body right of the centre line; a symmetric one lets the car swing 3 m over it."""
+    bus = boxes([[40.0, -2.0]], [[30.0, 1.9]])  # 0.1 m closer than the comfort distance to the lane's car
+    kept, clearance, _ = drive(planner_for([[0, 0], [300, 0]]), (0.0, 0.0, 0.0, 8.0), 100, lambda t: bus)
+    assert kept[:, 1].max() < PlannerConfig().corridor_left + 0.05 and kept[-1, 0] > 35.0 and clearance.min() > 0.1
+    swung, _, _ = drive(planner_for([[0, 0], [300, 0]], corridor_left=3.5), (0.0, 0.0, 0.0, 8.0), 100, lambda t: bus)
+    assert swung[:, 1].max() > 1.8
+
+
 @pytest.mark.parametrize("yaw, speed", [(2.5, 3.0), (3.0, 0.0)])
 def test_turned_round_it_turns_back_instead_of_driving_the_route_backwards(yaw, speed):
     # issue 11: swung round while waiting behind traffic, the car drove the route backwards at the reference speed

@@ -197,6 +197,8 @@ class ClosedLoop:
         mount = invert(self.frame.base_pose) @ self.frame.pose  # base_link <- lidar
         # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
         settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
+        settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}, **lanes_corridor(self.sim, settings.vehicle.width)},
+                         spec.planner, source="planner settings")
         self.ssf_pose = None
         if spec.pose == "ssf" and scans is not None:
             limits = (settings.vehicle.max_accel, settings.vehicle.max_decel)  # how the ego follows the commands
@@ -279,6 +281,14 @@ class ClosedLoop:
             pose_error_median_m=_stat(self.pose_errors, 50), pose_error_max_m=_stat(self.pose_errors, 100),
             standing_ahead=standing_ahead(self.sim) if self.outcome in (TrialOutcome.STUCK, TrialOutcome.TIMEOUT)
             else None)
+
+
+def lanes_corridor(sim: Simulator, width: float) -> dict[str, float]:
+    """The planner's corridor on the simulated road: the car's body on the lanes of the route's direction, between the
+    centre line and the road edge (right-hand traffic); `-p corridor_left:=...` still overrides it."""
+    section = sim.world.section
+    return {"corridor_left": max(-sim.lane_offset - width / 2, 0.1),
+            "corridor_right": max(sim.lane_offset + section.road_edge - width / 2, 0.1)}
 
 
 def run_trial(spec: TrialSpec) -> TrialRecord:
