@@ -236,14 +236,15 @@ class PlannerNode(Node):
         """Every control period: when odometry is late (a loaded perception chain answers less often than the
         control period), plan again from the newest pose carried forward by the commands sent since; once none has
         come for longer than the latency that can be compensated, slow down to a stop (said once)."""
-        if self.odometry is None:
+        arrived, ticked = self.last_odometry_s, self.last_tick_s
+        if self.odometry is None or arrived is None or ticked is None:  # none yet, or its first tick is under way
             return
         now = self.get_clock().now_s()
-        age = now - self.last_odometry_s
+        age = now - arrived
         if abs(age) > self.patience_s:  # negative: from before a restart
             self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s old): braking")
             self._publish(braking_on_the_arc(self.last_command, self.config.vehicle.max_decel * self.config.control_period))
-        elif age > LATE_ODOMETRY_PERIODS * self.config.control_period and now - self.last_tick_s >= self.config.control_period:
+        elif age > LATE_ODOMETRY_PERIODS * self.config.control_period and now - ticked >= self.config.control_period:
             self._tick(self.odometry)  # in lockstep the clock waits for the planner: odometry is never late there
 
     def _publish(self, command: Command) -> None:

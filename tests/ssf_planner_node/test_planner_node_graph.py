@@ -31,6 +31,11 @@ def route_message(route) -> object:
 states: list = []  # /ssf/planner_state messages of the running test
 
 
+def stamps(messages: list) -> list[int]:
+    """Header stamps (ns) of messages."""
+    return [message.header.stamp.sec * 10**9 + message.header.stamp.nanosec for message in list(messages)]
+
+
 @pytest.fixture
 def graph():
     started: list = []
@@ -64,7 +69,9 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
     loop = ClosedLoop(TrialSpec("gt", 100, 10, 120.0))
     ticks = [loop.tick() for _ in range(6)]
     assert any(len(tick.obstacles) for tick in ticks) and ticks[-1].command.linear > 0.5
-    node, publishers, commands = graph("solver.deadline_ms:=0.0")
+    corridor = loop.planner.config
+    node, publishers, commands = graph("solver.deadline_ms:=0.0", f"corridor_left:={corridor.corridor_left}",
+                                       f"corridor_right:={corridor.corridor_right}")
     publishers["route"].publish(route_message(loop.planner.route))
     assert wait_until(lambda: node.planner.route is not None)
     assert node.planner.route.length == pytest.approx(loop.planner.route.length)
@@ -72,15 +79,19 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
         publishers["obstacles"].publish(obstacles_to_msg(tick.obstacles))
         assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == tick.state.stamp_ns)
         publishers["odom"].publish(odometry_to_msg(odometry(tick)))
-        assert wait_until(lambda: len(commands) == index + 1), f"no /cmd_vel for tick {index}"
-        command = commands[index]
-        assert command.linear.x == pytest.approx(tick.command.linear, abs=1e-4)
-        assert command.angular.z == pytest.approx(tick.command.angular, abs=1e-4)
-    assert node.planner.stats.total == len(ticks) and node.planner.stats.fallbacks == 0
-    assert wait_until(lambda: len(states) == len(ticks))  # one /ssf/planner_state per tick, for the viewer's plots
+        # each tick publishes its command and its /ssf/planner_state (stamped with its odometry); on a loaded machine
+        # the watchdog may also have planned again from the late previous odometry: the answer is the first with this
+        assert wait_until(lambda: tick.state.stamp_ns in stamps(states)), f"no answer to the odometry of tick {index}"
+        answer = stamps(states).index(tick.state.stamp_ns)
+        assert wait_until(lambda: len(commands) > answer), f"no /cmd_vel for tick {index}"
+        command = commands[answer]
+        replanned = answer > index  # a replan in between warm-starts this tick from another plan: close, not equal
+        assert command.linear.x == pytest.approx(tick.command.linear, abs=2e-3 if replanned else 1e-4)
+        assert command.angular.z == pytest.approx(tick.command.angular, abs=2e-3 if replanned else 1e-4)
+    assert node.planner.stats.total == len(commands) and node.planner.stats.fallbacks == 0
+    assert wait_until(lambda: len(states) == len(commands))  # one /ssf/planner_state per tick, for the viewer's plots
     assert all(state.status == "solved" and state.solve_ms > 0 and state.rounds >= 1 for state in states), [(s.status, s.solve_ms, s.rounds) for s in states]
-    assert [state.header.stamp.sec * 10**9 + state.header.stamp.nanosec for state in states] == [
-        tick.state.stamp_ns for tick in ticks]
+    assert sorted(set(stamps(states))) == [tick.state.stamp_ns for tick in ticks]  # replans keep their odometry's stamp
     assert states[-1].fallbacks == 0 and all(state.clearance == -1.0 or state.clearance > 0 for state in states)
 
 

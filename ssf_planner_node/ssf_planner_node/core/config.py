@@ -89,11 +89,11 @@ class PlannerConfig(Section):
     reference_speed: float = Field(10.0, gt=0.0, le=40.0, description="cruise speed along the route (m/s)")
     goal_decel: float = Field(1.5, gt=0.0, description="comfortable deceleration (m/s^2) for stopping at the goal")
     goal_tolerance: float = Field(3.0, gt=0.0, description="the route is done within this distance of its end (m)")
-    corridor_left: float = Field(0.8, gt=0.0, description="the plan's centre stays within this distance left of the "
+    corridor_left: float = Field(0.825, gt=0.0, description="the plan's centre stays within this distance left of the "
                                  "route (m) and ...")
-    corridor_right: float = Field(4.3, gt=0.0, description="... right of it (m): the lanes of the route's direction, less "
-                                  "half the car (default: the inner lane of two 3.5 m lanes, right-hand traffic: the "
-                                  "body keeps right of the centre line, off the oncoming lanes)")
+    corridor_right: float = Field(4.325, gt=0.0, description="... right of it (m): the lanes of the route's direction, less "
+                                  "half the car (default: the inner lane of two 3.5 m lanes, right-hand traffic, a 1.85 m "
+                                  "car: the body keeps right of the centre line, off the oncoming lanes)")
     corridor_gain: float = Field(1000.0, gt=0.0, description="cost per metre and step outside the corridor: it is soft, "
                                  "so a car already outside it (a pose error, a swerve) steers back instead of braking")
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
