@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -85,6 +87,17 @@ def test_pressed_by_a_long_vehicle_on_the_right_the_car_keeps_off_the_oncoming_l
     assert kept[:, 1].max() < PlannerConfig().corridor_left + 0.05 and kept[-1, 0] > 35.0 and clearance.min() > 0.1
     swung, _, _ = drive(planner_for([[0, 0], [300, 0]], corridor_left=3.5), (0.0, 0.0, 0.0, 8.0), 100, lambda t: bus)
     assert swung[:, 1].max() > 1.8
+
+
+def test_a_turn_never_swings_the_rear_into_someone_standing_beside_it():
+    """issue 11: ground truth hit a pedestrian at 1000 agents (world 310): standing 1-10 cm beside the rear, the hard
+    bound's slack let the car creep closer tick by tick, and a turn swung the rear into the person between two of the
+    plan's steps (0.2 s apart). Each plan is now checked where its first command puts the car at the next tick."""
+    person = replace(boxes([[-2.0, 0.925 + 0.35 + 0.012]], [[0.7, 0.7]]), kinds=np.array([ObstacleKind.PEDESTRIAN]))
+    states, clearance, _ = drive(planner_for([[0, 0], [2, 0], [12, -10], [40, -38]]), (0.0, 0.0, 0.0, 0.0), 30,
+                                 lambda t: person)  # a sharp right turn from rest: the rear swings left
+    assert clearance.min() > 0.012 - 1e-3  # never closer than it stood (the old planner: 3.4 cm into the person)
+    assert states[-1, 0] > 5.0 and states[-1, 3] > 5.0  # and still drove off round the turn
 
 
 @pytest.mark.parametrize("yaw, speed", [(2.5, 3.0), (3.0, 0.0)])

@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from ssf_common.geometry.kinematics import PlanarState, driven
 from ssf_common.records import Obstacles, Plan
 from ssf_planner_node.core import avoidance
 from ssf_planner_node.core.config import PlannerConfig
@@ -162,7 +163,7 @@ class RdaPlanner:
             nominal = settled
             planes = self._hyperplanes(nominal, corners)  # the next round's dual step, and the check of this plan
             clearance, intrusion = self._margins(planes.distances)
-            if intrusion >= 0.0:
+            if intrusion >= 0.0 and self._next_tick_margin(state, controls, corners) >= 0.0:
                 clear = _Candidate(nominal, controls, clearance)
             reference = self._reference(nominal, stale)
             if moved < cfg.solver.tolerance:
@@ -242,6 +243,23 @@ class RdaPlanner:
             return float("inf"), float("inf")
         return self._margins(self._hyperplanes(states, corners).distances)
 
+    def _next_tick_margin(self, state: VehicleState, controls: np.ndarray, corners: np.ndarray) -> float:
+        """The margin to a collision where the first control puts the car at the next tick (one control period on,
+        against the obstacles predicted to then): the plan's steps lie dt apart, and between them a turn swings the
+        rear into what stands beside it; from there on the next tick plans again."""
+        if corners.shape[1] == 0:
+            return float("inf")
+        cfg = self.config
+        command = command_of(cfg, state.vector, controls[0])
+        ahead = driven(PlanarState(state.x, state.y, state.yaw, state.speed), [(0, command.linear, command.angular)],
+                       0, int(round(cfg.control_period * 1e9)), np.inf, np.inf)  # the command's speed at once
+        then = corners[:1] + (cfg.control_period / cfg.dt) * (corners[1:2] - corners[:1])  # constant velocities
+        distances = self._hyperplanes(np.array([state.vector, [ahead.x, ahead.y, ahead.yaw, ahead.speed]]),
+                                      np.concatenate([corners[:1], then])).distances
+        now = distances[0]  # not closer than HARD_MARGIN, nor than now where closer: no creeping in by the bound's slack
+        floor = np.where(now < 0.0, now - HARD_MARGIN, np.minimum(HARD_MARGIN, now))
+        return float((distances[1] - floor).min())
+
     def _margins(self, distances: np.ndarray) -> tuple[float, float]:
         """`_clearance` from the distances (T, K) of a plan's footprints (step 0: now) to the obstacles."""
         floor = np.minimum(self._hard_distances(distances[0]), 0.0)
@@ -256,7 +274,7 @@ class RdaPlanner:
                 controls = self._warm_controls(state)
                 states = rollout(self._trajectory, state.vector, controls)
                 clearance, intrusion = self._clearance(states, corners)
-                if intrusion >= 0.0:
+                if intrusion >= 0.0 and self._next_tick_margin(state, controls, corners) >= 0.0:
                     command = command_of(self.config, state.vector, controls[0])
                     self._applied = controls[0].copy()
                     return PlanStep(command, self._plan(state, states, controls), TickStatus.SHIFTED, reason, 0.0, 0,
