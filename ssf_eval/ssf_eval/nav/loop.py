@@ -196,8 +196,9 @@ class ClosedLoop:
         self.delay = DelayLine(spec.latency_s, spec.answer_every, self.sim.dt) if timed and not self.follower else None
         mount = invert(self.frame.base_pose) @ self.frame.pose  # base_link <- lidar
         # lockstep: simulated time waits for the planner, so no wall-clock deadline (the same trial, the same result)
-        settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}}, spec.planner, source="planner settings")
-        settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}, **lanes_corridor(self.sim, settings.vehicle.width)},
+        # and the corridor of the simulated road for the car's width (both overridden by what the trial's planner says)
+        width = build(PlannerConfig, {}, spec.planner, source="planner settings").vehicle.width
+        settings = build(PlannerConfig, {"solver": {"deadline_ms": 0.0}, **lanes_corridor(self.sim, width)},
                          spec.planner, source="planner settings")
         self.ssf_pose = None
         if spec.pose == "ssf" and scans is not None:
