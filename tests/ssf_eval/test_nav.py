@@ -86,6 +86,22 @@ def test_a_busy_graph_perceives_every_nth_scan_and_the_pose_moves_on_between():
     assert ticks[-1].state.speed > 1.0  # it drives: the late pose is carried forward by the commands sent
 
 
+def test_the_ssf_loop_runs_as_many_iterations_as_the_trial_says_and_keys_them():
+    """By default one flow <-> segmentation pass per pair (as in real time); --loop-iterations 3 iterates (keyed apart)."""
+    iterations = {}
+    for count in (1, 3):
+        spec = TrialSpec("ssf", 50, 100, 20.0, 20.0, loop_iterations=count)
+        loop = ClosedLoop(spec)
+        for _ in range(6):
+            loop.tick()
+        assert loop.perception.scans.pipeline.config.fusion.max_iterations == count
+        iterations[count] = loop.perception.iterations
+    assert set(iterations[1]) == {1} and len(iterations[3]) == 5 and max(iterations[3]) > 1
+    assert TrialSpec("ssf", 50, 3, 40.0, loop_iterations=3).key == "ssf/50/3/40m+loop3/gt"
+    assert TrialSpec("gt", 50, 3, 40.0, pose="ssf", loop_iterations=3).key == "gt/50/3/40m+loop3/ssf"
+    assert TrialSpec("gt", 50, 3, 40.0, loop_iterations=3).key == "gt/50/3/40m/gt"  # no ssf: nothing to key
+
+
 def test_a_stuck_trial_counts_the_vehicles_standing_in_the_lane_ahead():
     loop = ClosedLoop(TrialSpec("gt", 50, 100, 20.0, 20.0))
     traffic, ego = loop.sim.traffic, loop.sim.ego.state
@@ -239,6 +255,7 @@ def test_the_table_and_the_figure(tmp_path):
     (["--route-length", "5"], "--route-length must be at least 20 m"),
     (["--latency", "-1"], "--latency must be from 0 to 10 s"),
     (["--answer-every", "0"], "--answer-every must be at least 1"),
+    (["--loop-iterations", "0"], "--loop-iterations must be from 1 to 20"),
     (["-p", "horizon:=1"], "horizon"),
     (["--table-only"], "--table-only needs --resume FILE"),
     (["--video-first", "-1"], "--video-first must be 0 or more"),

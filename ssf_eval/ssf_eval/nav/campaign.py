@@ -40,12 +40,12 @@ def attempt(spec: TrialSpec, trial: Callable[[TrialSpec], TrialRecord] = run_tri
 def campaign_specs(perceptions: list[str], agents: list[int], trials: int, seed: int = 100,
                    route_length: float | None = None, time_limit: float | None = None, pose: str = "gt",
                    planner: dict | None = None, scenario: dict | None = None, latency_s: float = 0.0,
-                   answer_every: int = 1) -> list[TrialSpec]:
+                   answer_every: int = 1, loop_iterations: int = 1) -> list[TrialSpec]:
     """Every (perception, agents, trial) with seeds seed .. seed + trials - 1: all cells see the same worlds."""
     if trials < 1:
         raise ConfigError(f"--trials must be at least 1, got {trials}")
     return [TrialSpec(name, count, seed + index, route_length, time_limit, pose, dict(planner or {}), dict(scenario or {}),
-                      latency_s=latency_s, answer_every=answer_every)
+                      latency_s=latency_s, answer_every=answer_every, loop_iterations=loop_iterations)
             for count in agents for name in perceptions for index in range(trials)]
 
 

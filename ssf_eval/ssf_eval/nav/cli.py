@@ -52,6 +52,9 @@ def register(groups: CommandGroups) -> None:
                      "does (default 0: lockstep)")
     nav.add_argument("--answer-every", type=int, default=1, metavar="N",
                      help="perception answers one scan in N, the others dropped as by a busy node (default 1)")
+    nav.add_argument("--loop-iterations", type=int, default=1, metavar="N",
+                     help="ssf: flow <-> segmentation iterations per scan pair, each scan starting from the previous "
+                     "one's mask (default 1, as the real-time graph runs the loop; the demo's lockstep graph uses 3)")
     nav.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                      help="planner config override, e.g. -p horizon:=12 -p obstacles.max_obstacles:=8")
     nav.add_argument("-s", "--scenario-param", action="append", default=[], metavar="NAME:=VALUE",
@@ -92,6 +95,8 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ConfigError(f"--latency must be from 0 to 10 s, got {args.latency:g}")
     if args.answer_every < 1:
         raise ConfigError(f"--answer-every must be at least 1, got {args.answer_every}")
+    if not 1 <= args.loop_iterations <= 20:
+        raise ConfigError(f"--loop-iterations must be from 1 to 20, got {args.loop_iterations}")
     if args.workers is not None and args.workers < 1:
         raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     overrides = parse_overrides(args.param, "-p")
@@ -107,7 +112,8 @@ def run_eval(args: argparse.Namespace) -> int:
     for count in sorted(set(agents)):  # a bad setting is one line now, not a failure in every trial
         scenario_for(count, scenario)
     specs = campaign_specs(perceptions, agents, args.trials, args.seed, args.route_length, args.time_limit, args.pose,
-                           overrides, scenario, latency_s=args.latency, answer_every=args.answer_every)
+                           overrides, scenario, latency_s=args.latency, answer_every=args.answer_every,
+                           loop_iterations=args.loop_iterations)
     specs = with_videos(specs, args.video_first, args.video_dir, args.video_format, args.trials)
     runner = RayRunner(args.ray) if args.ray else LocalRunner(args.workers or os.cpu_count() or 1)
     print(f"navigation: {len(specs)} trials ({len(perceptions)} sources x {len(agents)} densities x {args.trials}), "
@@ -121,7 +127,7 @@ def run_eval(args: argparse.Namespace) -> int:
     print(format_table(cells))
     protocol = {"agents": agents, "perception": perceptions, "trials": args.trials, "seed": args.seed,
                 "route_length": args.route_length, "time_limit": args.time_limit, "pose": args.pose,
-                "latency_s": args.latency, "answer_every": args.answer_every,
+                "latency_s": args.latency, "answer_every": args.answer_every, "loop_iterations": args.loop_iterations,
                 "trial_log": str(log_path)}
     if args.json:
         write_result(args.json, {"protocol": protocol, "cells": [cell.to_json() for cell in cells]},

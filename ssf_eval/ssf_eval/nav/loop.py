@@ -21,7 +21,7 @@ from ssf_common.records import Obstacles, Plan
 from ssf_common.geometry.se3 import invert
 from ssf_eval.nav.perception import ODOM_FRAME, Observation, make_perception
 from ssf_eval.nav.film import TrialFilm
-from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose
+from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose, whole_scan_config
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import carried_forward, vehicle_state
 from ssf_planner_node.core.models import Command
@@ -66,6 +66,7 @@ class TrialSpec:
     video: str = ""  # film the trial into this file (.mp4 or .gif); not part of its key
     latency_s: float = 0.0  # perception answers this long after their scan, as in the real-time graph
     answer_every: int = 1  # perception answers one scan in this many (the others are dropped, as a busy node does)
+    loop_iterations: int = 1  # ssf: flow <-> segmentation iterations per scan pair (1: as the real-time graph runs it)
 
     @property
     def key(self) -> str:
@@ -73,7 +74,9 @@ class TrialSpec:
         length = "full" if self.route_length is None else f"{self.route_length:g}m"
         timing = f"+late{self.latency_s:g}s-every{self.answer_every}" if self.latency_s or self.answer_every > 1 else ""
         world = "".join(f"+{name}={value}" for name, value in sorted(self.scenario.items()))
-        return f"{self.perception}/{self.agents}/{self.seed}/{length}{timing}{world}/{self.pose}"
+        uses_ssf = "ssf" in (self.perception, self.pose) and self.perception != "follower"
+        loop = f"+loop{self.loop_iterations}" if uses_ssf and self.loop_iterations != 1 else ""
+        return f"{self.perception}/{self.agents}/{self.seed}/{length}{timing}{loop}{world}/{self.pose}"
 
 
 @dataclass(frozen=True)
@@ -190,7 +193,8 @@ class ClosedLoop:
         self.time_limit = spec.time_limit or max(60.0, scenario_limit * self.route.length / self.sim.world.route_length)
         self.follower = self.sim.follower() if spec.perception == "follower" else None
         every = spec.answer_every  # the pipeline perceives only the scans a graph that busy answers
-        scans = ConsecutiveScans(every=every) if "ssf" in (spec.perception, spec.pose) and not self.follower else None
+        uses_ssf = "ssf" in (spec.perception, spec.pose) and not self.follower
+        scans = ConsecutiveScans(whole_scan_config(spec.loop_iterations), every=every) if uses_ssf else None
         self.perception = None if self.follower else make_perception(spec.perception, scans=scans)
         timed = spec.latency_s > 0 or spec.answer_every > 1
         self.delay = DelayLine(spec.latency_s, spec.answer_every, self.sim.dt) if timed and not self.follower else None

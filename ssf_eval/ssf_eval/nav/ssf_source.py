@@ -22,9 +22,11 @@ from ssf_seg_node.core.obstacles import stack
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 
-def whole_scan_config() -> PerceptionConfig:
-    """The pipeline as the graph's nodes run it on whole scans."""
-    return build(PerceptionConfig, {"flow": WHOLE_SCAN}, source="ssf perception")
+def whole_scan_config(loop_iterations: int | None = None) -> PerceptionConfig:
+    """The pipeline as the graph's nodes run it on whole scans (`loop_iterations`: the fusion loop's N_iter, else its
+    default)."""
+    loop = {} if loop_iterations is None else {"fusion": {"max_iterations": loop_iterations}}
+    return build(PerceptionConfig, {"flow": WHOLE_SCAN, **loop}, source="ssf perception")
 
 
 class PerceivedPair(NamedTuple):
