@@ -16,7 +16,7 @@ from ssf_common.errors import ConfigError
 
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
 from sim_bridge.agents import AgentKind
-from ssf_eval.nav.loop import (PERCEPTION_NAMES, ClosedLoop, DelayLine, TrialOutcome, TrialRecord, TrialSpec,
+from ssf_eval.nav.loop import (PERCEPTION_NAMES, ClosedLoop, DelayLine, MovingTime, TrialOutcome, TrialRecord, TrialSpec,
                                standing_ahead)
 from ssf_eval.nav.stats import barn_score, summarise, wilson_interval
 
@@ -102,6 +102,20 @@ def test_the_ssf_loop_runs_as_many_iterations_as_the_trial_says_and_keys_them():
     assert TrialSpec("gt", 50, 3, 40.0, loop_iterations=3).key == "gt/50/3/40m/gt"  # no ssf: nothing to key
 
 
+def test_the_moving_speed_leaves_the_time_standing_out():
+    moving = MovingTime()
+    for seconds, metres in [(0.1, 1.0), (0.1, 0.0), (0.1, 0.005), (0.1, 0.5), (0.0, 0.0)]:
+        moving.add(seconds, metres)
+    assert moving.seconds == pytest.approx(0.2) and moving.speed == pytest.approx(7.5)  # 1.5 m in the two moving steps
+    assert MovingTime().speed == 0.0
+    loop = ClosedLoop(TrialSpec("gt", 50, 100, 20.0, 20.0))
+    while loop.outcome is None:
+        loop.tick()
+    record = loop.record(0.0)
+    assert record.moving_speed_mps >= record.average_speed_mps > 0  # it starts from rest: some steps stand
+    assert TrialRecord.from_json({**record.to_json(), "moving_speed_mps": None}).moving_speed_mps is None  # older logs
+
+
 def test_a_stuck_trial_counts_the_vehicles_standing_in_the_lane_ahead():
     loop = ClosedLoop(TrialSpec("gt", 50, 100, 20.0, 20.0))
     traffic, ego = loop.sim.traffic, loop.sim.ego.state
@@ -173,7 +187,7 @@ def fake_trial(spec: TrialSpec) -> TrialRecord:
     won = spec.seed % 2 == 0
     return TrialRecord(spec.key, spec.perception, spec.agents, spec.seed, "fake",
                        "success" if won else "collision_pedestrian", "" if won else "pedestrian 3", 10.0, 6.0, 60.0,
-                       60.0, 0.5, 60.0, 100, 0, {}, 1.0, 2.0, 3.0, 0.0, 1.0, 0.0)
+                       60.0, 0.5, 60.0, 100, 0, {}, 1.0, 2.0, 3.0, 0.0, 1.0, 0.0, moving_speed_mps=7.5)
 
 
 class Interrupted(Exception):
@@ -243,7 +257,7 @@ def test_the_table_and_the_figure(tmp_path):
     records = [fake_trial(spec) for spec in campaign_specs(["gt", "ssf"], [50, 100], 4, seed=0)]
     cells = summarise(records)
     table = format_table(cells)
-    assert "| gt | 50 | 0.50 (0.15–0.85) | 10.0 | 6.00 | 2 | 0 | 0 |" in table
+    assert "| gt | 50 | 0.50 (0.15–0.85) | 10.0 | 6.00 | 7.50 | 2 | 0 | 0 |" in table
     plot_cells(cells, tmp_path / "nav.png", "fake")
     assert (tmp_path / "nav.png").stat().st_size > 10_000
 

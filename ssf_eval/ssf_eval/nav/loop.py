@@ -35,6 +35,7 @@ PERCEPTION_NAMES = ("gt", "dbscan", "dbscan0", "ssf", "follower")
 POSE_SOURCES = ("gt", "ssf")  # the ego pose from the simulator's ground truth or from SSF odometry
 STUCK_WINDOW_S = 45.0  # no progress of STUCK_PROGRESS_M along the route in this long: stuck
 STUCK_PROGRESS_M = 2.0
+MOVING_SPEED_MPS = 0.1  # the car moves (for the paper's moving average speed) when faster than this over a step
 QUEUE_REACH_M = 30.0  # a stuck or timed-out trial counts the vehicles standing in the route's lane this far ahead
 STANDING_SPEED = 0.5  # m/s: slower is standing
 QUEUE_MIN = 2  # that many standing there: the car is behind a queue, not stuck on its own
@@ -109,6 +110,7 @@ class TrialRecord:
     pose_error_median_m: float = 0.0  # with --pose ssf: |estimated - true| ego position over the trial
     pose_error_max_m: float = 0.0
     standing_ahead: int | None = None  # stuck or timed out: vehicles standing in the route's lane in the 30 m ahead
+    moving_speed_mps: float | None = None  # the paper's moving average speed: distance over the time spent moving
 
     @property
     def success(self) -> bool:
@@ -147,6 +149,26 @@ class Tick:
 
 
 SENT_KEPT = 100  # commands kept to carry a late pose forward: 10 s at 10 Hz, far more than any latency
+
+
+@dataclass
+class MovingTime:
+    """Distance and time over the steps in which the car moves (faster than MOVING_SPEED_MPS): the paper's moving
+    average speed leaves the time standing in traffic out."""
+
+    seconds: float = 0.0
+    metres: float = 0.0
+
+    def add(self, seconds: float, metres: float) -> None:
+        """One simulator step of `seconds` in which the car drove `metres`."""
+        if seconds > 0 and metres > MOVING_SPEED_MPS * seconds:
+            self.seconds += seconds
+            self.metres += metres
+
+    @property
+    def speed(self) -> float:
+        """m/s while moving (0 if it never moved)."""
+        return round(self.metres / self.seconds, 3) if self.seconds > 0 else 0.0
 
 
 class DelayLine:
@@ -215,6 +237,7 @@ class ClosedLoop:
         self.perceive_ms: list[float] = []
         self.step_ms: list[float] = []
         self.progress = [(0.0, 0.0)]  # (time, arc length) whenever the ego got STUCK_PROGRESS_M further
+        self.moving = MovingTime()
         self.outcome: TrialOutcome | None = None
 
     def _route(self, length: float | None) -> Route:
@@ -243,8 +266,10 @@ class ClosedLoop:
         self.sent.append((frame.stamp_ns, Command(command.linear, command.angular)))
         del self.sent[:-SENT_KEPT]
         started = time.perf_counter()
+        before = self.frame.status
         self.frame = self.sim.step(command)
         self.step_ms.append((time.perf_counter() - started) * 1e3)
+        self.moving.add(self.frame.status.time - before.time, self.frame.status.distance - before.distance)
         self.outcome = _judge(self.sim, self.frame, self.route, self.world_to_odom, self.time_limit, self.progress)
         return Tick(state, pose, obstacles, command, status, plan)
 
@@ -285,7 +310,7 @@ class ClosedLoop:
             wall_s=round(time.perf_counter() - started, 1), pose=spec.pose,
             pose_error_median_m=_stat(self.pose_errors, 50), pose_error_max_m=_stat(self.pose_errors, 100),
             standing_ahead=standing_ahead(self.sim) if self.outcome in (TrialOutcome.STUCK, TrialOutcome.TIMEOUT)
-            else None)
+            else None, moving_speed_mps=self.moving.speed)
 
 
 def lanes_corridor(sim: Simulator, width: float) -> dict[str, float]:

@@ -27,13 +27,14 @@ def plot_cells(cells: list[CellSummary], path: Path, title: str) -> str:
         errors = [[cell.success_rate - cell.success_ci95[0] for cell in rows],
                   [cell.success_ci95[1] - cell.success_rate for cell in rows]]
         axes[0].errorbar(agents, rate, yerr=errors, marker="o", capsize=3, label=source, color=colour)
-        for axis, values in ((axes[1], [cell.navigation_time_s for cell in rows]),
-                             (axes[2], [cell.average_speed_mps for cell in rows])):
+        for axis, values, style in ((axes[1], [cell.navigation_time_s for cell in rows], "-"),
+                                    (axes[2], [cell.average_speed_mps for cell in rows], "-"),
+                                    (axes[2], [cell.moving_speed_mps for cell in rows], "--")):
             shown = [(a, v) for a, v in zip(agents, values) if v is not None]
             if shown:
-                axis.plot(*zip(*shown), marker="o", label=source, color=colour)
+                axis.plot(*zip(*shown), style, marker="o", label=source if style == "-" else None, color=colour)
     for axis, label in zip(axes, ("success rate (95 % Wilson interval)", "navigation time of successes (s)",
-                                  "average speed of successes (m/s)")):
+                                  "speed of successes (m/s): average —, while moving --")):
         axis.set_xlabel("moving agents")
         axis.set_ylabel(label)
         axis.grid(alpha=0.3)

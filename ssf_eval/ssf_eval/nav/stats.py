@@ -46,6 +46,7 @@ class CellSummary:
     success_ci95: tuple[float, float]
     navigation_time_s: float | None  # mean over successful trials
     average_speed_mps: float | None  # mean over successful trials
+    moving_speed_mps: float | None  # the paper's moving average speed: mean over successful trials that recorded it
     collisions: int
     collisions_by_kind: dict[str, int]
     timeouts: int
@@ -90,6 +91,7 @@ def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], refere
         success_rate=round(len(won) / len(rows), 4), success_ci95=tuple(round(v, 4) for v in wilson_interval(len(won), len(rows))),
         navigation_time_s=_mean([row.navigation_time_s for row in won]),
         average_speed_mps=_mean([row.average_speed_mps for row in won]),
+        moving_speed_mps=_mean([row.moving_speed_mps for row in won if row.moving_speed_mps is not None]),
         collisions=sum(collisions.values()), collisions_by_kind=collisions,
         timeouts=outcomes[TrialOutcome.TIMEOUT.value], stuck=outcomes[TrialOutcome.STUCK.value],
         queued=sum(row.standing_ahead is not None and row.standing_ahead >= QUEUE_MIN for row in rows),
