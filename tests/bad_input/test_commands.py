@@ -199,6 +199,7 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["eval", "nav", f"--seed={d(bad_seeds())}"],
         lambda d, f: ["eval", "nav", f"{d(st.sampled_from(['--route-length', '--time-limit']))}={d(not_positive())}"],
         lambda d, f: ["eval", "nav", f"--workers={d(st.integers(max_value=0))}"],
+        lambda d, f: ["eval", "nav", f"--loop-iterations={d(st.one_of(st.integers(max_value=0), st.integers(min_value=21)))}"],
         lambda d, f: ["eval", "nav", "-p", d(bad_overrides())],
         lambda d, f: ["eval", "nav", d(st.sampled_from(["--json", "--plot", "--resume"])), bad_output(d, f)],
         lambda d, f: ["eval", "nav", f"--video-first={d(st.integers(max_value=-1))}"],
