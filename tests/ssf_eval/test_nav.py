@@ -251,13 +251,17 @@ def test_a_tiny_campaign_on_ray_in_local_mode(tmp_path):
 
 
 def test_the_table_and_the_figure(tmp_path):
-    from ssf_eval.nav.cli import format_table
+    from ssf_eval.nav.cli import format_failures, format_table
     from ssf_eval.nav.plot import plot_cells
 
     records = [fake_trial(spec) for spec in campaign_specs(["gt", "ssf"], [50, 100], 4, seed=0)]
     cells = summarise(records)
     table = format_table(cells)
     assert "| gt | 50 | 0.50 (0.15–0.85) | 10.0 | 6.00 | 7.50 | 2 | 0 | 0 |" in table
+    failures = format_failures(records).splitlines()
+    assert failures[0] == "failed trials (seed: outcome):" and len(failures) == 5  # four cells, odd seeds fail
+    assert failures[1] == "- gt/50: 1 collision pedestrian (pedestrian 3); 3 collision pedestrian (pedestrian 3)"
+    assert format_failures([record for record in records if record.success]) == ""
     plot_cells(cells, tmp_path / "nav.png", "fake")
     assert (tmp_path / "nav.png").stat().st_size > 10_000
 

@@ -125,6 +125,9 @@ def run_eval(args: argparse.Namespace) -> int:
         records = run_campaign(specs, TrialLog(log_path), runner)
     cells = summarise(records, planner.reference_speed)
     print(format_table(cells))
+    failures = format_failures(records)
+    if failures:
+        print(failures)
     protocol = {"agents": agents, "perception": perceptions, "trials": args.trials, "seed": args.seed,
                 "route_length": args.route_length, "time_limit": args.time_limit, "pose": args.pose,
                 "latency_s": args.latency, "answer_every": args.answer_every, "loop_iterations": args.loop_iterations,
@@ -183,6 +186,26 @@ def format_table(cells) -> str:
                      f"{speed} | {moving} | {cell.collisions} | {cell.timeouts} | {cell.stuck} | {cell.queued} | {cell.barn_score:.3f} | "
                      f"{cell.trials} |")
     return "\n".join(lines)
+
+
+def format_failures(records) -> str:
+    """Which worlds each cell failed in and how (seed: outcome, what it hit or how many vehicles stood ahead), to
+    compare the sources world by world; empty when every trial succeeded."""
+    from ssf_eval.nav.loop import QUEUE_MIN
+
+    cells: dict[tuple[str, int], list[str]] = {}
+    for record in sorted(records, key=lambda record: (record.agents, record.perception, record.pose, record.seed)):
+        if record.success:
+            continue
+        why = record.outcome.replace("_", " ")
+        if record.collided_with:
+            why += f" ({record.collided_with})"
+        elif record.standing_ahead is not None and record.standing_ahead >= QUEUE_MIN:
+            why += f" (behind a queue of {record.standing_ahead})"
+        source = record.perception if record.pose == "gt" else f"{record.perception} + {record.pose} pose"
+        cells.setdefault((source, record.agents), []).append(f"{record.seed} {why}")
+    return "\n".join(["failed trials (seed: outcome):"] + [f"- {source}/{agents}: {'; '.join(items)}"
+                                                           for (source, agents), items in cells.items()]) if cells else ""
 
 
 def _counts(text: str) -> list[int]:
