@@ -1,13 +1,23 @@
-"""Ego motion between two scans by robust coarse-to-fine point-to-plane ICP (Open3D)."""
+"""Ego motion between two scans by robust coarse-to-fine point-to-plane ICP (Open3D, or small_gicp with the target's
+KD-tree built once)."""
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import NamedTuple
 
 import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.errors import ConfigError
+
+
+class IcpBackend(str, Enum):
+    """Which library runs the point-to-plane ICP."""
+
+    OPEN3D = "open3d"  # Tukey kernel of half the correspondence distance; the target's KD-tree built on every call
+    SMALL_GICP = "small_gicp"  # correspondences cut at half the distance; the target's KD-tree and normals built once
 
 
 class RegistrationConfig(Section):
@@ -29,6 +39,8 @@ class RegistrationConfig(Section):
     coarse_samples: int = Field(5, ge=1, description="random samples the coarse stages may run on: where the "
                                 "refinement walks away from the first one's answer, the others' answers are "
                                 "refined too and the one that brings most points within refine_distance wins")
+    backend: IcpBackend = Field(IcpBackend.OPEN3D, description="ICP library: open3d, or small_gicp (pip install "
+                                "'ssf-pan[bench]'; it stops on its own small-update test, so `tolerance` does not apply)")
     seed: int = 0
 
 
@@ -50,18 +62,14 @@ class ScanMatcher:
     """Point-to-plane ICP against one target scan (its normals computed once)."""
 
     def __init__(self, target: np.ndarray, config: RegistrationConfig) -> None:
-        import open3d as o3d
-
         self.config = config
         self.usable = target.shape[0] >= 10
-        self.target = to_cloud(target)
-        if self.usable:
-            self.target.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(config.normal_neighbours))
+        self.icp = (SmallGicpTarget if config.backend is IcpBackend.SMALL_GICP else Open3dTarget)(
+            np.asarray(target, dtype=np.float64), config.normal_neighbours, self.usable)
 
     def normals(self) -> np.ndarray:
         """Unit normals (N, 3) of the target points (zeros when the target was too small)."""
-        normals = np.asarray(self.target.normals)
-        return normals if len(normals) else np.zeros((len(self.target.points), 3))
+        return self.icp.normals()
 
     def coarse(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False,
                sample: int = 0) -> np.ndarray:
@@ -108,21 +116,73 @@ class ScanMatcher:
             ordered: bool = False, sample: int = 0) -> Alignment:
         """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points (the
         `sample`-th random sample: ordered sources use their `sample`-th run of `points`)."""
-        import open3d as o3d
-
         transform = np.asarray(initial, dtype=np.float64)
         if source.shape[0] < 10 or not self.usable:
             return Alignment(transform, 0.0)
         if source.shape[0] > points:
             source = source[(sample * points + np.arange(points)) % source.shape[0]] if ordered else source[
                 source_sample(source.shape[0], points, self.config.seed, sample)]
+        return self.icp.fit(source, transform, distance, iterations, self.config.tolerance)
+
+
+class Open3dTarget:
+    """Open3D's point-to-plane ICP with a Tukey kernel of half the correspondence distance."""
+
+    def __init__(self, target: np.ndarray, neighbours: int, usable: bool) -> None:
+        import open3d as o3d
+
+        self.cloud = to_cloud(target)
+        if usable:
+            self.cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(neighbours))
+
+    def normals(self) -> np.ndarray:
+        """Unit normals (N, 3) (zeros when none were estimated)."""
+        normals = np.asarray(self.cloud.normals)
+        return normals if len(normals) else np.zeros((len(self.cloud.points), 3))
+
+    def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
+            tolerance: float) -> Alignment:
+        """ICP from `initial`; fitness: the share of source points within `distance`."""
+        import open3d as o3d
+
         pipelines = o3d.pipelines.registration
         result = pipelines.registration_icp(
-            to_cloud(source), self.target, distance, transform,
+            to_cloud(source), self.cloud, distance, initial,
             pipelines.TransformationEstimationPointToPlane(pipelines.TukeyLoss(k=distance / 2.0)),
-            pipelines.ICPConvergenceCriteria(self.config.tolerance, self.config.tolerance, iterations),
+            pipelines.ICPConvergenceCriteria(tolerance, tolerance, iterations),
         )
         return Alignment(np.asarray(result.transformation), float(result.fitness))
+
+
+class SmallGicpTarget:
+    """small_gicp's point-to-plane ICP against a target whose KD-tree and normals are built once; correspondences
+    farther than half the distance are dropped (where Open3D's Tukey kernel reaches zero weight)."""
+
+    def __init__(self, target: np.ndarray, neighbours: int, usable: bool) -> None:
+        try:
+            import small_gicp
+        except ImportError:
+            raise ConfigError("registration.backend small_gicp needs small_gicp: pip install 'ssf-pan[bench]'") from None
+        self.small_gicp = small_gicp
+        self.count = target.shape[0]
+        self.cloud = small_gicp.PointCloud(target)
+        self.tree = small_gicp.KdTree(self.cloud) if usable else None
+        if usable:
+            small_gicp.estimate_normals(self.cloud, self.tree, num_neighbors=neighbours)
+
+    def normals(self) -> np.ndarray:
+        """Unit normals (N, 3) (zeros when none were estimated)."""
+        return np.asarray(self.cloud.normals())[:, :3] if self.tree is not None else np.zeros((self.count, 3))
+
+    def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
+            tolerance: float) -> Alignment:
+        """ICP from `initial` (small_gicp stops on its own small-update test: `tolerance` does not apply); fitness:
+        the share of source points within half the distance."""
+        result = self.small_gicp.align(self.cloud, self.small_gicp.PointCloud(np.asarray(source, dtype=np.float64)),
+                                       self.tree, np.asarray(initial, dtype=np.float64), registration_type="PLANE_ICP",
+                                       max_correspondence_distance=distance / 2.0, num_threads=1,
+                                       max_iterations=iterations)
+        return Alignment(np.asarray(result.T_target_source), result.num_inliers / max(source.shape[0], 1))
 
 
 def source_sample(count: int, points: int, seed: int, sample: int) -> np.ndarray:
