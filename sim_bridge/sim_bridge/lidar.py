@@ -46,6 +46,12 @@ class Scan:
         return len(self.points)
 
 
+def empty_scan() -> Scan:
+    """A scan without points (a simulator run without scans)."""
+    return Scan(np.zeros((0, 3), np.float32), np.zeros(0, np.float32), np.zeros(0, np.uint16), np.zeros(0, np.float32),
+                np.zeros(0, np.uint8), np.zeros(0, np.int32))
+
+
 def _import_open3d():
     import open3d as o3d
 

@@ -13,7 +13,7 @@ from sim_bridge.driver import RouteFollower
 from sim_bridge.ego import EgoState, EgoVehicle, Outcome, VelocityCommand
 from sim_bridge.footprints import Rectangles, rectangle_circle_distance, rectangle_distance
 from sim_bridge.ground_truth import FlowTruth, scene_flow
-from sim_bridge.lidar import Lidar, Scan
+from sim_bridge.lidar import Lidar, Scan, empty_scan
 from sim_bridge.scenario import OdometerConfig, Scenario
 from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint, agent_mesh
 from sim_bridge.traffic import Traffic
@@ -95,8 +95,9 @@ class EpisodeLog:
 class Simulator:
     """Closed-loop LiDAR traffic simulator: `reset()`, then `step(cmd)` every dt; same seed, same frames."""
 
-    def __init__(self, scenario: Scenario, seed: int | None = None):
+    def __init__(self, scenario: Scenario, seed: int | None = None, scans: bool = True):
         self.scenario = scenario
+        self.scans = scans  # False: no LiDAR scan (and no flow truth) per step, for drivers that read only the agents
         self.seed = scenario.seed if seed is None else require_seed(seed, "seed")
         self.dt = scenario.episode.dt
         self.world = World(scenario, self.seed)
@@ -240,9 +241,11 @@ class Simulator:
         base = self.ego.base_pose()
         pose = base @ self.mount
         agents = self.traffic.states()
-        dynamic = agent_mesh(agents, pose[:2, 3], self.lidar.spec.max_range)
-        scan = self.lidar.scan(pose, dynamic, self._noise)
-        truth = (lambda: None) if previous is None else partial(
+        if not self.scans:  # the scan's noise has a generator of its own: skipping scans changes nothing else
+            scan = empty_scan()
+        else:
+            scan = self.lidar.scan(pose, agent_mesh(agents, pose[:2, 3], self.lidar.spec.max_range), self._noise)
+        truth = (lambda: None) if previous is None or not self.scans else partial(
             scene_flow, previous.scan.points, previous.scan.instance, previous.pose, pose, previous.agents.poses(),
             agents.poses())
         state = self.ego.state

@@ -138,3 +138,19 @@ def test_the_odometer_is_a_twist_stamped_in_base_link():
     msg = vehicle_twist(MeasuredMotion(4.5, -0.2), 300_000_000)
     assert msg.header.frame_id == "base_link" and messages.stamp_ns(msg.header.stamp) == 300_000_000
     assert (msg.twist.linear.x, msg.twist.angular.z) == (4.5, -0.2)
+
+
+def test_a_run_without_scans_drives_the_same_world(small_scenario):
+    """Drivers that read only the agents (ground truth, the follower) skip the LiDAR: the same traffic, ego, odometer
+    and scores step by step, an empty scan and no flow truth."""
+    scenario = small_scenario(agents=30)
+    with_scans, without = Simulator(scenario, seed=4), Simulator(scenario, seed=4, scans=False)
+    frames = [with_scans.reset(), without.reset()]
+    for step in range(40):
+        command = VelocityCommand(min(6.0, 0.5 * step), 0.05)
+        frames = [with_scans.step(command), without.step(command)]
+        seen, blind = frames
+        assert np.array_equal(seen.agents.position, blind.agents.position) and seen.ego == blind.ego
+        assert seen.status == blind.status and seen.measured == blind.measured
+    assert len(seen.scan) > 1000 and seen.flow is not None
+    assert len(blind.scan) == 0 and blind.scan.points.shape == (0, 3) and blind.flow is None

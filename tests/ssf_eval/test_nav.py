@@ -355,3 +355,11 @@ def test_a_ray_task_runs_its_trial_from_plain_fields():
     assert done.returncode == 0, done.stderr
     key, outcome = done.stdout.split()
     assert key == spec.key and outcome in {outcome.value for outcome in TrialOutcome}
+
+
+def test_the_lidar_is_cast_only_for_sources_that_read_it():
+    assert not ClosedLoop(TrialSpec("gt", 50, 3, 40.0)).sim.scans
+    assert not ClosedLoop(TrialSpec("follower", 50, 3, 40.0)).sim.scans
+    assert ClosedLoop(TrialSpec("dbscan", 50, 3, 40.0)).sim.scans
+    assert ClosedLoop(TrialSpec("gt", 50, 3, 40.0, pose="ssf")).sim.scans  # the SSF odometry reads the scans
+    assert ClosedLoop(TrialSpec("gt", 50, 3, 40.0, video="trial.gif")).sim.scans  # the film shows them

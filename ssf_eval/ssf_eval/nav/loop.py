@@ -206,7 +206,12 @@ class ClosedLoop:
             raise ConfigError(f"unknown pose source '{spec.pose}'; choose from {', '.join(POSE_SOURCES)}")
         self.spec = spec
         self.scenario, scenario_limit = scenario_for(spec.agents, spec.scenario)
-        self.sim = Simulator(self.scenario, spec.seed)
+        uses_ssf = "ssf" in (spec.perception, spec.pose) and spec.perception != "follower"
+        scans = ConsecutiveScans(whole_scan_config(spec.loop_iterations), every=spec.answer_every) if uses_ssf else None
+        self.perception = None if spec.perception == "follower" else make_perception(spec.perception, scans=scans)
+        # the LiDAR is cast only for those who read it (a video shows the scan): ground truth and the follower do not
+        reads = uses_ssf or bool(spec.video) or (self.perception is not None and self.perception.reads_scan)
+        self.sim = Simulator(self.scenario, spec.seed, scans=reads)
         self.frame = self.sim.reset()
         self.world_to_odom = invert(self.frame.base_pose)  # the odometry frame: the ego's start pose
         # both drivers follow the whole route (the follower knows no other); the trial is won `route_length` along it
@@ -214,10 +219,6 @@ class ClosedLoop:
         drive = self.route if spec.route_length is None else self._route(None)
         self.time_limit = spec.time_limit or max(60.0, scenario_limit * self.route.length / self.sim.world.route_length)
         self.follower = self.sim.follower() if spec.perception == "follower" else None
-        every = spec.answer_every  # the pipeline perceives only the scans a graph that busy answers
-        uses_ssf = "ssf" in (spec.perception, spec.pose) and not self.follower
-        scans = ConsecutiveScans(whole_scan_config(spec.loop_iterations), every=every) if uses_ssf else None
-        self.perception = None if self.follower else make_perception(spec.perception, scans=scans)
         timed = spec.latency_s > 0 or spec.answer_every > 1
         self.delay = DelayLine(spec.latency_s, spec.answer_every, self.sim.dt) if timed and not self.follower else None
         mount = invert(self.frame.base_pose) @ self.frame.pose  # base_link <- lidar
