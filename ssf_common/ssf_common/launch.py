@@ -65,6 +65,8 @@ class GraphSpec(Section):
     nodes: list[NodeSpec] = Field(min_length=1)
     global_parameters: dict[str, Any] = Field(default_factory=dict)
     stop_timeout_s: float = Field(default=5.0, gt=0)
+    drain_s: float = Field(default=1.0, ge=0, le=60, description="after a required node's clean end, the others run "
+                           "this long to take in its last messages (a recorder its last scan) before they are stopped")
 
 
 def load_graph(path: str | Path, overrides: dict[str, Any] | None = None) -> GraphSpec:
@@ -259,6 +261,10 @@ class Launcher:
                 return False
         return not all(managed.finished for managed in self.managed)
 
+    def _ended_cleanly(self) -> bool:
+        """Whether the graph ends because a required node finished its job (not a failure)."""
+        return not self.failures and any(m.finished and m.spec.required for m in self.managed)
+
     def _finish_stopped(self, managed: ManagedProcess, code: int) -> None:
         managed.finished = True
         if code == -signal.SIGKILL:
@@ -303,7 +309,11 @@ class Launcher:
         try:
             self.start()
             while not stop_requested.is_set():
-                if not self.poll() or (deadline is not None and time.monotonic() >= deadline):
+                if not self.poll():
+                    if self._ended_cleanly():
+                        stop_requested.wait(self.graph.drain_s)
+                    break
+                if deadline is not None and time.monotonic() >= deadline:
                     break
                 stop_requested.wait(0.1)
         finally:

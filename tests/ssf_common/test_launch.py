@@ -173,6 +173,37 @@ def test_launch_restarts_crashes_not_configuration_errors_and_exits_non_zero(tmp
     assert not any(alive(pid) for pid in pids)
 
 
+def test_a_finished_required_node_s_last_messages_are_recorded(tmp_path):
+    """The graph ends when the required player ends, but the recorder first takes in its last message (drain_s)."""
+    from ssf_common import messages
+    from ssf_common.bags.reader import open_bag
+    from ssf_common.bags.writer import BagWriter
+
+    string = messages.msg_type("std_msgs/msg/String")
+    with BagWriter(tmp_path / "played") as writer:
+        writer.add_topic("/chatter", "std_msgs/msg/String")
+        for i in range(20):
+            writer.write("/chatter", messages.serialize(string(data=f"message {i}")), 1_000_000_000 + i * 10_000_000)
+    graph = write_graph(
+        tmp_path,
+        [
+            {"executable": "ssf", "name": "recorder", "ros_args": False,
+             "arguments": ["record", "-o", str(tmp_path / "recorded"), "/chatter"]},
+            {"executable": "ssf", "name": "player", "ros_args": False, "required": True,
+             "arguments": ["bag", "play", str(tmp_path / "played"), "--delay", "6"]},
+        ],
+        drain_s=2.0,
+    )
+    launcher, output = launch(graph)
+    launcher.wait(timeout=120)
+    text = output.text()
+    assert launcher.returncode == 0, text
+    with open_bag(tmp_path / "recorded") as bag:
+        recorded = [bag.decode(m).data for m in bag.messages(["/chatter"])]
+    assert recorded[-1] == "message 19", text
+    assert recorded == [f"message {i}" for i in range(20)]
+
+
 def python_started(pid: int) -> bool:
     """Whether the interpreter in `pid` runs Python code yet (it has installed its SIGINT handler)."""
     try:

@@ -341,3 +341,34 @@ def test_nodes_are_announced_on_ros_discovery_info_for_ros2_node_list(nodes):
     writer_gids = [bytes(gid.data) for gid in entries["announced_node"].writer_gid_seq]
     assert publisher._transport.guid in writer_gids
     assert bytes(info.gid.data) == participant.dp.guid.bytes
+
+
+def test_a_node_that_publishes_and_leaves_at_once_still_delivers_its_last_message(nodes):
+    """destroy_node waits (bounded) for matched readers to acknowledge: a big last scan is not lost with its writer."""
+    listener = nodes("listener")
+    inbox = Inbox()
+    listener.create_subscription("sensor_msgs/msg/PointCloud2", "/test/last_scans", inbox)
+    listener.spin_in_thread()
+    child = textwrap.dedent(
+        """
+        import sys, time
+        import numpy as np
+        from ssf_common import messages
+        from ssf_common.middleware import Node, shutdown
+        from ssf_common.pointcloud import xyz_to_cloud
+
+        node = Node("leaving_talker")
+        pub = node.create_publisher("sensor_msgs/msg/PointCloud2", "/test/last_scans")
+        deadline = time.monotonic() + 30
+        while pub.get_subscription_count() == 0 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        points = np.random.default_rng(0).normal(size=(120_000, 3)).astype(np.float32)  # ~1.4 MB, many fragments
+        for i in range(5):
+            pub.publish(xyz_to_cloud(points, messages.header(i + 1, "lidar")))
+        node.request_shutdown(); node.destroy_node(); shutdown()
+        """
+    )
+    process = subprocess.run([sys.executable, "-P", "-c", child], stderr=subprocess.PIPE, text=True, timeout=120)
+    assert process.returncode == 0, process.stderr
+    assert wait_until(lambda: len(inbox.items) == 5, timeout_s=10)
+    assert [messages.stamp_ns(m.header.stamp) for m in inbox.items] == [1, 2, 3, 4, 5]

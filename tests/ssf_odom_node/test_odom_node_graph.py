@@ -48,6 +48,11 @@ def semantic_flow(index: int) -> SemanticFlow:
     return SemanticFlow(index * PERIOD_NS, "lidar", points, flow, segmentation)
 
 
+def tf_stamp(msg) -> int:
+    """The stamp of a /tf message's first transform."""
+    return messages.stamp_ns(msg.transforms[0].header.stamp)
+
+
 @pytest.fixture
 def graph():
     node = OdomNode(argv=["--ros-args", "-p", "map_period_s:=0.2", "-p", "report_period_s:=60.0", "-p", "map.confirm:=2",
@@ -91,6 +96,9 @@ def test_node_publishes_odometry_tf_path_and_map_from_replayed_scans(graph, capf
     np.testing.assert_allclose(odometry.position, [4 * STEP, 0.0, 0.0], atol=0.03)  # the convoy does not pull it
     assert odometry.twist[0] == pytest.approx(STEP / 0.1, abs=0.3)
     assert np.linalg.eigvalsh(odometry.pose_covariance).min() > 0
+    # /tf and /ssf/path are other topics: each arrives in its own time after /odom
+    assert wait_until(lambda: received["tf"] and tf_stamp(received["tf"][-1]) == 4 * PERIOD_NS)
+    assert wait_until(lambda: received["path"] and len(received["path"][-1].poses) == 4)
     transform = received["tf"][-1].transforms[0]
     assert (transform.header.frame_id, transform.child_frame_id) == ("odom", "base_link")
     assert transform.transform.translation.x == pytest.approx(4 * STEP, abs=0.03)
@@ -129,7 +137,7 @@ def test_a_restarted_stream_starts_the_odometry_again(graph):
     restarted = odometry_from_msg(received["odom"][-1])
     assert restarted.stamp_ns == 2 * PERIOD_NS
     np.testing.assert_allclose(restarted.position, [2 * STEP, 0.0, 0.0], atol=0.03)
-    assert len(received["path"][-1].poses) == 2
+    assert wait_until(lambda: len(received["path"][-1].poses) == 2)  # the path follows /odom on its own topic
     assert node.sequence.restarts == 1
 
 

@@ -225,6 +225,11 @@ class EmbeddedPublisher:
         """How many readers are matched."""
         return len(self._writer.get_matched_subscriptions())
 
+    def wait_for_all_acked(self, timeout_s: float) -> bool:
+        """Block until every matched reliable reader acknowledged what was written, or the timeout; True if they did."""
+        writer = self._writer
+        return writer is None or writer.wait_for_acks(max(int(timeout_s * 1e9), 0))
+
     def destroy(self) -> None:
         """Delete the writer."""
         self._writer = None

@@ -115,6 +115,11 @@ class Publisher:
         """Matched subscriptions."""
         return self._transport.matched_count()
 
+    def wait_for_all_acked(self, timeout_s: float = 1.0) -> bool:
+        """Block until every matched reliable subscription acknowledged what was published (rclpy's name), or the
+        timeout; True if they all did."""
+        return self._transport.wait_for_all_acked(timeout_s)
+
 
 class Subscription:
     """Delivers decoded messages (or raw CDR) of one topic to a callback on the node's thread."""
@@ -374,6 +379,7 @@ class Node:
         if spinner is not None and spinner is not threading.current_thread():
             self.request_shutdown()
             spinner.join(timeout_s)
+        self._deliver_last_messages()
         for subscription in self._subscriptions:
             subscription.transport.destroy()
         for publisher in self._publishers:
@@ -384,6 +390,16 @@ class Node:
         destroy = getattr(self._backend, "destroy_node", None)
         if destroy is not None:
             destroy()
+
+    def _deliver_last_messages(self, timeout_s: float = 1.0) -> None:
+        """Give the readers of what this node published a moment to acknowledge it (a lost fragment of the last
+        scan is resent only while its writer lives); a reader that is gone costs at most `timeout_s` in all."""
+        deadline = time.monotonic() + timeout_s
+        for publisher in self._publishers:
+            try:
+                publisher.wait_for_all_acked(max(deadline - time.monotonic(), 0.0))
+            except Exception:  # noqa: BLE001 - a writer that cannot wait is destroyed as before
+                pass
 
     def _handle(self, event: Any) -> None:
         if event is None:

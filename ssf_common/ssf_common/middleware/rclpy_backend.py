@@ -40,6 +40,12 @@ class RclpyPublisher:
         """Matched subscriptions."""
         return self._publisher.get_subscription_count()
 
+    def wait_for_all_acked(self, timeout_s: float) -> bool:
+        """Block until every matched reliable subscription acknowledged what was published, or the timeout."""
+        from rclpy.duration import Duration
+
+        return self._publisher.wait_for_all_acked(Duration(nanoseconds=max(int(timeout_s * 1e9), 0)))
+
     def destroy(self) -> None:
         """Nothing to do: rclpy destroys it with the node."""
 
