@@ -192,6 +192,7 @@ def format_failures(records) -> str:
     """Which worlds each cell failed in and how (seed: outcome, what it hit or how many vehicles stood ahead), to
     compare the sources world by world; empty when every trial succeeded."""
     from ssf_eval.nav.loop import QUEUE_MIN
+    from ssf_eval.nav.stats import source_name
 
     cells: dict[tuple[str, int], list[str]] = {}
     for record in sorted(records, key=lambda record: (record.agents, record.perception, record.pose, record.seed)):
@@ -202,8 +203,7 @@ def format_failures(records) -> str:
             why += f" ({record.collided_with})"
         elif record.standing_ahead is not None and record.standing_ahead >= QUEUE_MIN:
             why += f" (behind a queue of {record.standing_ahead})"
-        source = record.perception if record.pose == "gt" else f"{record.perception} + {record.pose} pose"
-        cells.setdefault((source, record.agents), []).append(f"{record.seed} {why}")
+        cells.setdefault((source_name(record.perception, record.pose), record.agents), []).append(f"{record.seed} {why}")
     return "\n".join(["failed trials (seed: outcome):"] + [f"- {source}/{agents}: {'; '.join(items)}"
                                                            for (source, agents), items in cells.items()]) if cells else ""
 

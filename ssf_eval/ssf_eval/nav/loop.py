@@ -70,13 +70,17 @@ class TrialSpec:
     loop_iterations: int = 1  # ssf: flow <-> segmentation iterations per scan pair (1: as the real-time graph runs it)
 
     @property
+    def uses_ssf(self) -> bool:
+        """Whether the trial runs the SSF chain on the scans (for its obstacles or its pose)."""
+        return "ssf" in (self.perception, self.pose) and self.perception != "follower"
+
+    @property
     def key(self) -> str:
         """A unique name of the trial (resume matches on it)."""
         length = "full" if self.route_length is None else f"{self.route_length:g}m"
         timing = f"+late{self.latency_s:g}s-every{self.answer_every}" if self.latency_s or self.answer_every > 1 else ""
         world = "".join(f"+{name}={value}" for name, value in sorted(self.scenario.items()))
-        uses_ssf = "ssf" in (self.perception, self.pose) and self.perception != "follower"
-        loop = f"+loop{self.loop_iterations}" if uses_ssf and self.loop_iterations != 1 else ""
+        loop = f"+loop{self.loop_iterations}" if self.uses_ssf and self.loop_iterations != 1 else ""
         return f"{self.perception}/{self.agents}/{self.seed}/{length}{timing}{loop}{world}/{self.pose}"
 
 
@@ -206,11 +210,10 @@ class ClosedLoop:
             raise ConfigError(f"unknown pose source '{spec.pose}'; choose from {', '.join(POSE_SOURCES)}")
         self.spec = spec
         self.scenario, scenario_limit = scenario_for(spec.agents, spec.scenario)
-        uses_ssf = "ssf" in (spec.perception, spec.pose) and spec.perception != "follower"
-        scans = ConsecutiveScans(whole_scan_config(spec.loop_iterations), every=spec.answer_every) if uses_ssf else None
+        scans = ConsecutiveScans(whole_scan_config(spec.loop_iterations), every=spec.answer_every) if spec.uses_ssf else None
         self.perception = None if spec.perception == "follower" else make_perception(spec.perception, scans=scans)
         # the LiDAR is cast only for those who read it (a video shows the scan): ground truth and the follower do not
-        reads = uses_ssf or bool(spec.video) or (self.perception is not None and self.perception.reads_scan)
+        reads = spec.uses_ssf or bool(spec.video) or (self.perception is not None and self.perception.reads_scan)
         self.sim = Simulator(self.scenario, spec.seed, scans=reads)
         self.frame = self.sim.reset()
         self.world_to_odom = invert(self.frame.base_pose)  # the odometry frame: the ego's start pose

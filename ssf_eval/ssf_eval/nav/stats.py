@@ -34,6 +34,11 @@ def barn_score(success: bool, route_length: float, time_s: float, reference_spee
     return optimal / min(max(time_s, 2 * optimal), 8 * optimal)
 
 
+def source_name(perception: str, pose: str) -> str:
+    """A table row's name: the perception source, and the pose source when it is not the ground truth."""
+    return perception if pose == "gt" else f"{perception} + {pose} pose"
+
+
 @dataclass(frozen=True)
 class CellSummary:
     """One (perception, agents) cell: the paper's three columns with a Wilson interval, outcomes and costs."""
@@ -63,7 +68,7 @@ class CellSummary:
     @property
     def source(self) -> str:
         """The row's name: the perception source, and the pose source when it is not the ground truth."""
-        return self.perception if self.pose == "gt" else f"{self.perception} + {self.pose} pose"
+        return source_name(self.perception, self.pose)
 
     def to_json(self) -> dict[str, Any]:
         """Plain data for the result file."""
