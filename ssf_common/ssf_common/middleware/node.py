@@ -398,8 +398,8 @@ class Node:
         for publisher in self._publishers:
             try:
                 publisher.wait_for_all_acked(max(deadline - time.monotonic(), 0.0))
-            except Exception:  # noqa: BLE001 - a writer that cannot wait is destroyed as before
-                pass
+            except Exception as err:  # noqa: BLE001 - a writer that cannot wait is destroyed all the same
+                self.get_logger().warning(f"{publisher.topic_name}: could not wait for its readers ({err})")
 
     def _handle(self, event: Any) -> None:
         if event is None:
