@@ -144,6 +144,14 @@ def test_cells_keep_the_pose_sources_apart():
     assert cells[1].pose_error_max_m == pytest.approx(0.2)
 
 
+def test_cells_come_source_by_source_each_by_growing_density():
+    """A log merged from campaign lanes lists its trials in any order; the table does not."""
+    trials = [fake_trial(TrialSpec(perception, agents, 0)) for perception, agents in
+              [("ssf", 1000), ("gt", 500), ("ssf", 50), ("gt", 50), ("ssf", 500)]]
+    assert [(cell.perception, cell.agents) for cell in summarise(trials)] == [
+        ("ssf", 50), ("ssf", 500), ("ssf", 1000), ("gt", 50), ("gt", 500)]
+
+
 def test_the_delay_line_answers_one_scan_in_n_each_late_as_a_loaded_graph():
     line = DelayLine(latency_s=0.3, every=2, dt=0.1)
     seen = [line.through(tick, f"scan {tick}", f"pose {tick}") for tick in range(8)]

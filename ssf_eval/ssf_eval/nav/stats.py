@@ -76,12 +76,14 @@ class CellSummary:
 
 
 def summarise(records: Iterable[TrialRecord], reference_speed: float = 10.0) -> list[CellSummary]:
-    """Per (perception, pose, agents) cell, in the order cells first appear."""
+    """Per (perception, pose, agents) cell: the sources in the order they first appear, each by growing density."""
     cells: dict[tuple[str, str, int], list[TrialRecord]] = {}
+    sources: dict[tuple[str, str], int] = {}
     for record in records:
+        sources.setdefault((record.perception, record.pose), len(sources))
         cells.setdefault((record.perception, record.pose, record.agents), []).append(record)
-    return [summarise_cell(perception, agents, rows, reference_speed)
-            for (perception, _pose, agents), rows in cells.items()]
+    ordered = sorted(cells.items(), key=lambda item: (sources[item[0][:2]], item[0][2]))
+    return [summarise_cell(perception, agents, rows, reference_speed) for (perception, _pose, agents), rows in ordered]
 
 
 def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], reference_speed: float) -> CellSummary:
