@@ -310,6 +310,7 @@ def test_graph_parameters_no_node_can_take_are_refused_with_the_file_and_name(tm
         ("nodes: []", "nodes"),
         ("nodes:\n  - name: x\n", "executable"),
         ("nodes:\n  - executable: ssf_seg_node\n    max_restarts: -1\n", "max_restarts"),
+        ("nodes:\n  - executable: ssf_seg_node\ndrain_s: -1\n", "drain_s"),
         ("nodes: [unclosed", "not valid YAML"),
     ],
 )
