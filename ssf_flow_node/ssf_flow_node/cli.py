@@ -30,7 +30,8 @@ def register(groups: CommandGroups) -> None:
 
     train = groups.train.add_parser("flow", help="train the ASF-style scene flow network",
                                     description="Supervised (multi-scale EPE) or self-supervised (Chamfer + smoothness) "
-                                    "training on exported pairs; checkpoints carry their config and can be resumed.")
+                                    "training on exported pairs; checkpoints carry their config and can be resumed. Ctrl-C or "
+                                    "SIGTERM stops after the current step and saves.")
     train.add_argument("--data", type=Path, required=True, help="directory of exported .npz pairs")
     train.add_argument("--out", type=Path, default=Path("asf.pt"), help="checkpoint to write (default asf.pt)")
     train.add_argument("--resume", type=Path, help="continue from this checkpoint with its config")

@@ -17,7 +17,8 @@ def register(groups: CommandGroups) -> None:
         "L_SC + L_CD + smoothness) on the flow of a project estimator cached beside the pairs (`ssf train seg-flow "
         "--data DIR --estimator rigid`) or on the ground-truth flow (--flow gt); pointnet learns static/dynamic "
         "from the labels. Labels of --val pairs are read only to log accuracy and moving IoU. Checkpoints carry "
-        "their config and resume with --resume (also on another device: --device cuda).")
+        "their config and resume with --resume (also on another device: --device cuda); Ctrl-C or SIGTERM "
+        "stops after the current step and saves.")
     train.add_argument("--data", type=Path, required=True, help="folder of exported .npz pairs (searched recursively)")
     train.add_argument("--val", type=Path, help="folder of validation pairs (scored against their labels, never trained on)")
     train.add_argument("--out", type=Path, default=Path("seg.pt"), help="checkpoint to write (default seg.pt)")

@@ -69,6 +69,25 @@ def test_checkpoint_carries_config_and_resumes(data, tmp_path):
     assert resumed.run().step == 5
 
 
+def test_ctrl_c_stops_training_at_the_next_step_and_saves_it(data, tmp_path):
+    import os
+    import signal
+
+    trainer = Trainer(tiny_config(steps=1000), pair_files(data), tmp_path / "stopped.pt", log=lambda line: None)
+    original = trainer.batch
+    calls = []
+
+    def batch():
+        calls.append(1)
+        if len(calls) == 2:
+            os.kill(os.getpid(), signal.SIGINT)
+        return original()
+
+    trainer.batch = batch
+    assert trainer.run().step == 2
+    assert checkpoint.load(tmp_path / "stopped.pt").state["step"] == 2
+
+
 def test_saved_weights_load_into_an_estimator(data, tmp_path):
     out = tmp_path / "weights.pt"
     checkpoint.save(out, AsfNet(TINY), tiny_config().model_dump(mode="json"))

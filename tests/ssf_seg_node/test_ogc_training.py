@@ -72,6 +72,30 @@ def test_checkpoints_carry_their_config_and_resume_with_validation_history(data,
         SegTrainer.resume(bare, pair_files(data), out)
 
 
+def test_a_signal_stops_training_at_the_next_step_and_saves_it(data, tmp_path):
+    """SIGTERM (a preempted job) or Ctrl-C: the step ends, the checkpoint is written, --resume continues from it."""
+    import os
+    import signal
+
+    lines: list[str] = []
+    trainer = SegTrainer(tiny_config(steps=1000), pair_files(data), tmp_path / "stopped.pt", log=lines.append)
+    batches = {"count": 0}
+    original = trainer.batch
+
+    def batch():
+        batches["count"] += 1
+        if batches["count"] == 3:
+            os.kill(os.getpid(), signal.SIGTERM)
+        return original()
+
+    trainer.batch = batch
+    handler = signal.getsignal(signal.SIGTERM)
+    assert trainer.run().step == 3
+    assert checkpoint.load(tmp_path / "stopped.pt").state["step"] == 3
+    assert "stopped at step 3 by a signal" in lines[-1]
+    assert signal.getsignal(signal.SIGTERM) is handler  # the job's handler is gone with the job
+
+
 def test_training_reads_the_cached_flow_or_says_how_to_make_it(data, tmp_path):
     trainer = SegTrainer(tiny_config(flow="rigid"), pair_files(data), tmp_path / "x.pt", log=lambda line: None)
     with pytest.raises(DataError, match="ssf train seg-flow"):

@@ -17,6 +17,7 @@ from ssf_common.dataset.pairs import ScanPair, read_pair
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import transform_points, yaw_matrix
 from ssf_common.geometry.torch_ops import gather, knn
+from ssf_common.interrupts import stop_requests
 from ssf_flow_node.core.asf import checkpoint
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import AsfConfig, AsfNet, FlowPyramid
@@ -211,24 +212,28 @@ class Trainer:
         started = time.monotonic()
         losses: list[float] = []
         window: list[float] = []
-        while self.step < self.config.steps:
-            loss, epe = self.loss(self.batch())
-            self.optimizer.zero_grad()
-            loss.backward()
-            self.optimizer.step()
-            self.scheduler.step()
-            self.step += 1
-            losses.append(float(loss.detach()))
-            window.append(epe)
-            elapsed = time.monotonic() - started
-            if self.step % self.config.log_every == 0 or self.step == self.config.steps:
-                self.log(f"step {self.step}/{self.config.steps} loss {np.mean(losses[-self.config.log_every:]):.4f} epe {np.mean(window[-self.config.log_every:]):.4f} "
-                         f"lr {self.scheduler.get_last_lr()[0]:.2e} elapsed {elapsed / 60:.1f} min")
-            if self.step % self.config.checkpoint_every == 0:
-                self.save()
-            if self.config.max_minutes and elapsed > self.config.max_minutes * 60:
-                self.log(f"time limit of {self.config.max_minutes} min reached at step {self.step}")
-                break
+        with stop_requests() as stop:
+            while self.step < self.config.steps:
+                loss, epe = self.loss(self.batch())
+                self.optimizer.zero_grad()
+                loss.backward()
+                self.optimizer.step()
+                self.scheduler.step()
+                self.step += 1
+                losses.append(float(loss.detach()))
+                window.append(epe)
+                elapsed = time.monotonic() - started
+                if self.step % self.config.log_every == 0 or self.step == self.config.steps:
+                    self.log(f"step {self.step}/{self.config.steps} loss {np.mean(losses[-self.config.log_every:]):.4f} epe {np.mean(window[-self.config.log_every:]):.4f} "
+                             f"lr {self.scheduler.get_last_lr()[0]:.2e} elapsed {elapsed / 60:.1f} min")
+                if self.step % self.config.checkpoint_every == 0:
+                    self.save()
+                if self.config.max_minutes and elapsed > self.config.max_minutes * 60:
+                    self.log(f"time limit of {self.config.max_minutes} min reached at step {self.step}")
+                    break
+                if stop.is_set():
+                    self.log(f"stopped at step {self.step} by a signal; saving (--resume continues)")
+                    break
         self.save()
         self.network.eval()
         return TrainResult(self.step, losses, self.out)

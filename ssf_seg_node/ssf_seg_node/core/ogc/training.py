@@ -20,6 +20,7 @@ from ssf_common.errors import DataError
 from ssf_common.geometry.sampling import sample_indices
 from ssf_common.geometry.se3 import rigid_flow, transform_points, yaw_matrix
 from ssf_common.geometry.torch_ops import gather
+from ssf_common.interrupts import stop_requests
 from ssf_seg_node.core.geometric import GeometricConfig, fit_ego_motion
 from ssf_seg_node.core.ogc import checkpoint
 from ssf_seg_node.core.ogc.checkpoint import NetworkKind
@@ -260,29 +261,33 @@ class SegTrainer:
         self.network.train()
         started = time.monotonic()
         losses: list[float] = []
-        while self.step < self.config.steps:
-            loss = self.loss(self.batch())
-            self.optimizer.zero_grad()
-            loss.backward()
-            if self.config.clip_norm:
-                torch.nn.utils.clip_grad_norm_(self.network.parameters(), self.config.clip_norm)
-            self.optimizer.step()
-            self.scheduler.step()
-            self.step += 1
-            losses.append(float(loss.detach()))
-            elapsed = time.monotonic() - started
-            if self.step % self.config.log_every == 0 or self.step == self.config.steps:
-                self.log(f"step {self.step}/{self.config.steps} loss {np.mean(losses[-self.config.log_every:]):.4f} "
-                         f"lr {self.scheduler.get_last_lr()[0]:.2e} elapsed {elapsed / 60:.1f} min")
-            if self.step % self.config.validate_every == 0 or self.step == self.config.steps:
-                self.log_validation()
-            if self.step % self.config.checkpoint_every == 0:
-                self.save()
-            if self.config.max_minutes and elapsed > self.config.max_minutes * 60:
-                self.log(f"time limit of {self.config.max_minutes} min reached at step {self.step}")
-                if self.step % self.config.validate_every:
+        with stop_requests() as stop:
+            while self.step < self.config.steps:
+                loss = self.loss(self.batch())
+                self.optimizer.zero_grad()
+                loss.backward()
+                if self.config.clip_norm:
+                    torch.nn.utils.clip_grad_norm_(self.network.parameters(), self.config.clip_norm)
+                self.optimizer.step()
+                self.scheduler.step()
+                self.step += 1
+                losses.append(float(loss.detach()))
+                elapsed = time.monotonic() - started
+                if self.step % self.config.log_every == 0 or self.step == self.config.steps:
+                    self.log(f"step {self.step}/{self.config.steps} loss {np.mean(losses[-self.config.log_every:]):.4f} "
+                             f"lr {self.scheduler.get_last_lr()[0]:.2e} elapsed {elapsed / 60:.1f} min")
+                if self.step % self.config.validate_every == 0 or self.step == self.config.steps:
                     self.log_validation()
-                break
+                if self.step % self.config.checkpoint_every == 0:
+                    self.save()
+                if self.config.max_minutes and elapsed > self.config.max_minutes * 60:
+                    self.log(f"time limit of {self.config.max_minutes} min reached at step {self.step}")
+                    if self.step % self.config.validate_every:
+                        self.log_validation()
+                    break
+                if stop.is_set():
+                    self.log(f"stopped at step {self.step} by a signal; saving (--resume continues)")
+                    break
         self.save()
         self.network.eval()
         return TrainResult(self.step, losses, list(self.history), self.out)
