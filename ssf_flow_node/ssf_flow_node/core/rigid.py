@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 from dataclasses import dataclass
 from typing import NamedTuple
 
@@ -19,6 +20,9 @@ from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
 from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, motion_gap
+
+
+PAIR_HISTORY = 3  # pairs whose work is kept: the loop's next iteration on a pair may come after the next pair
 
 
 class RigidConfig(Section):
@@ -75,6 +79,17 @@ class RigidConfig(Section):
     ego_tolerance: float = Field(0.1, ge=0.0, description="the ego motions aligned with and without the mask's dynamic "
                                  "points agree within this (m, over a 1 m radius); where they do not, the second must "
                                  "lie this much nearer the previous pair's to be taken")
+    carry_pairs: int = Field(10, ge=0, description="in a stream of scans, an object seen moving keeps its motion for at "
+                             "most this many pairs running in which the pair alone cannot tell it from standing still (a "
+                             "flank sliding along itself), while that motion explains scan t+1 no worse (0: never)")
+    carry_radius: float = Field(0.5, gt=0.0, description="a point of scan t takes the motion of the previous pair's "
+                                "moving point that landed nearest it, within this distance (m)")
+    carry_share: float = Field(0.5, gt=0.0, le=1.0, description="share of a cluster's points that must take a motion "
+                               "from the previous pair for the cluster to keep it")
+    carry_proven: int = Field(2, ge=1, description="pairs that must have shown the object moving on their own evidence "
+                              "before its motion is carried (one pair's phantom is not carried on)")
+    carry_tolerance: float = Field(0.2, ge=0.0, description="the cluster's own fitted motion replaces the carried one "
+                                   "where the two agree within this (m per pair)")
 
 
 class Clusters(NamedTuple):
@@ -88,11 +103,40 @@ class Clusters(NamedTuple):
 
 
 class ClusterMotions(NamedTuple):
-    """Per cluster: rotation about z, translation (in scan t+1's frame, after ego compensation), moving flag."""
+    """Per cluster: rotation about z, translation (in scan t+1's frame, after ego compensation), moving flag; and, over
+    the pairs of a stream, how many pairs its motion has been carried without the pair's own evidence (-1: still, 0:
+    this pair proved it) and how many pairs proved it on their own evidence (0: still)."""
 
     yaw: np.ndarray
     translation: np.ndarray
     moving: np.ndarray
+    carried: np.ndarray
+    proven: np.ndarray
+
+
+class Carried(NamedTuple):
+    """Per point of scan t, what the previous pair of a stream left there: the own motion (after the ego's) of the
+    moving point that landed nearest, how many pairs that motion had been carried (-1: no moving point near) and
+    how many pairs had proved it."""
+
+    motion: np.ndarray
+    streak: np.ndarray
+    proven: np.ndarray
+
+    def take(self, rows: np.ndarray) -> Carried:
+        """The same for a subset of the points."""
+        return Carried(self.motion[rows], self.streak[rows], self.proven[rows])
+
+
+class CarriedMotions(NamedTuple):
+    """Per cluster: the mean carried motion, whether enough of its points carry one, whether it may be carried on (not
+    for too long, proven often enough), for how many pairs it has been carried and how many pairs proved it."""
+
+    translation: np.ndarray
+    present: np.ndarray
+    usable: np.ndarray
+    streak: np.ndarray
+    proven: np.ndarray
 
 
 @dataclass
@@ -117,6 +161,11 @@ class PairState:
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
     moved: np.ndarray | None = None  # the sampled points that motion moves
     result: FlowResult | None = None  # the last estimate
+    next_key: bytes = b""  # scan t+1's fingerprint: the next pair of a stream starts with it
+    carried: Carried | None = None  # what the previous pair of the stream left on the sampled points
+    landed: np.ndarray | None = None  # the sampled points moved by the last estimate (scan t+1's frame)
+    streak: np.ndarray | None = None  # per sampled point, its cluster's ClusterMotions.carried in the last estimate
+    proven: np.ndarray | None = None  # per sampled point, its cluster's ClusterMotions.proven in the last estimate
 
 
 class RigidFlowEstimator:
@@ -128,7 +177,8 @@ class RigidFlowEstimator:
         self.preprocess = preprocess
         self.registration = registration
         self.config = config
-        self.state: PairState | None = None
+        self.state: PairState | None = None  # the pair asked about last
+        self.states: collections.OrderedDict[bytes, PairState] = collections.OrderedDict()  # the last few pairs
         self.scans = ScanCache(preprocess)
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
@@ -145,15 +195,17 @@ class RigidFlowEstimator:
         # 1. ego motion from every point and from the mask's static ones; where they differ, constant velocity judges
         ego = self.ego_motion(state, dynamic)
         compensated = transform_points(ego, points1)
+        carried = None if state.carried is None else state.carried._replace(motion=state.carried.motion @ ego[:3, :3].T)
         # 2. cluster the non-ground points of both scans together (optionally the mask's dynamic points apart)
         clusters = joint_clusters(compensated[above1], points2[above2], self.config.cluster_voxel,
                                   None if dynamic is None or not self.config.split_by_mask else dynamic[above1])
         # 3. rigid motion of each cluster (histogram-initialised ICP, kept only where it explains the data); clusters
-        #    that stay still although parts of them changed are clustered finer and tried again
+        #    that stay still although parts of them changed are clustered finer and tried again; a cluster the previous
+        #    pair saw moving keeps that motion where this pair cannot tell it from standing still
         belief = None if masked is None else masked[above1]
         previous = None if state.motion is None else state.motion[above1]
         clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous,
-                                          points1[above1])
+                                          points1[above1], None if carried is None else carried.take(above1))
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
         #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
@@ -164,6 +216,9 @@ class RigidFlowEstimator:
         moved = apply_motions(compensated, labels, motions)
         state.motion = moved - compensated
         state.moved = np.abs(state.motion).max(axis=1) > 0.0
+        state.landed = moved
+        state.streak = np.where(labels >= 0, motions.carried[np.maximum(labels, 0)], -1)
+        state.proven = np.where(labels >= 0, motions.proven[np.maximum(labels, 0)], 0)
         still = None
         if state.ground1 is not None:  # the lowest points stay with the ground, except in a mover's footprint
             still = state.ground1.copy()
@@ -174,9 +229,14 @@ class RigidFlowEstimator:
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
         """The cached work on this pair of scans (the fusion loop asks for the same pair again), or a fresh one."""
         key = fingerprint(pc1, pc2)
-        if self.state is not None and self.state.key == key:
+        if key in self.states:  # the loop asks again, perhaps after the stream's next pair (a node's mask hint)
+            self.states.move_to_end(key)
+            self.state = self.states[key]
             return self.state
-        prior = None if self.state is None else self.state.ego
+        first = fingerprint(pc1)
+        previous = next((state for state in reversed(self.states.values()) if state.next_key == first), None)
+        latest = previous or self.state
+        prior = None if latest is None else latest.ego
         pair = prepare(pc1, pc2, None, self.preprocess, self.scans)
         points1, points2 = pair.sample1.points, pair.sample2.points
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
@@ -195,7 +255,13 @@ class RigidFlowEstimator:
         if self.preprocess.remove_ground:  # whole scans: points on the ground take an object's motion only under it
             ground1 = pair.height1 < self.config.ground_clearance
             low = Plan(pair.pc1, np.flatnonzero(ground1))
-        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low, prior)
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low, prior,
+                               next_key=fingerprint(pc2))
+        if previous is not None and self.config.carry_pairs > 0:  # the stream's previous pair: its motions go on
+            self.state.carried = carry_motions(previous, points1, self.config.carry_radius)
+        self.states[key] = self.state
+        while len(self.states) > PAIR_HISTORY:
+            self.states.popitem(last=False)
         return self.state
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
@@ -236,6 +302,21 @@ class Plan:
         candidates = self.index[may_be_near(above[:, :2], self.points[self.index, :2], reach)]
         gap, _ = cKDTree(above[:, :2]).query(self.points[candidates, :2], distance_upper_bound=np.nextafter(reach, np.inf))
         return candidates[np.isfinite(gap)]
+
+
+def carry_motions(previous: PairState, points: np.ndarray, radius: float) -> Carried | None:
+    """What the previous pair of a stream left on the points of its scan t+1 (this pair's scan t): each point takes the
+    own motion and streak of the previous estimate's moving point that landed nearest it, within `radius` (m)."""
+    if previous.landed is None or previous.streak is None or previous.proven is None or previous.motion is None:
+        return None
+    motion, streak, proven = np.zeros((len(points), 3)), np.full(len(points), -1), np.zeros(len(points), np.int64)
+    moving = np.flatnonzero(previous.streak >= 0)
+    if moving.size and len(points):
+        gap, index = cKDTree(previous.landed[moving]).query(points, distance_upper_bound=radius)
+        hit = np.isfinite(gap)
+        source = moving[index[hit]]
+        motion[hit], streak[hit], proven[hit] = previous.motion[source], previous.streak[source], previous.proven[source]
+    return Carried(motion, streak, proven)
 
 
 def shows_ground(matcher: ScanMatcher, low: np.ndarray) -> bool:
@@ -299,9 +380,10 @@ def component_count(clusters: Clusters) -> int:
 
 
 def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, active: np.ndarray,
-                         config: RigidConfig, tree: cKDTree, previous: np.ndarray | None = None) -> np.ndarray:
-    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram, and the mean
-    motion its points had in the previous estimate on this pair."""
+                         config: RigidConfig, tree: cKDTree, previous: np.ndarray | None = None,
+                         carried: np.ndarray | None = None) -> np.ndarray:
+    """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram, the mean
+    motion its points had in the previous estimate on this pair, and the motion carried from the previous pair."""
     count = clusters.count
     picks1 = ranked_per_label(clusters.labels1, active, config.histogram_points, priorities(len(points1)))
     present = np.zeros(component_count(clusters), bool)
@@ -310,6 +392,8 @@ def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clu
     candidates = [np.zeros((count, 3)), centroid_shift(points1, points2, clusters)]
     if previous is not None:
         candidates.append(label_means(previous, clusters.labels1, count))
+    if carried is not None:
+        candidates.append(carried)
     if picks1.size and picks2.size:
         candidates += histogram_peaks(points1, points2, clusters, picks1, picks2, config)
     labels = clusters.labels1[picks1]
@@ -410,14 +494,16 @@ def fit_of(point: np.ndarray, plane: np.ndarray, labels: np.ndarray, count: int,
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
                     belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
                     tree: cKDTree | None = None, candidates: np.ndarray | None = None,
-                    previous: np.ndarray | None = None, sensed: np.ndarray | None = None) -> ClusterMotions:
+                    previous: np.ndarray | None = None, sensed: np.ndarray | None = None,
+                    carried: Carried | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
     standing still (as the moved sensor samples a still surface: `sensed`, the points where scan t saw them), and
-    standing still misses the surfaces by more than its component's noise floor (`floors`, m)."""
+    standing still misses the surfaces by more than its component's noise floor (`floors`, m); or where the previous
+    pair of the stream saw the cluster moving (`carried`) and that motion explains them no worse than standing still."""
     count = clusters.count
     yaw, translation = np.zeros(count), np.zeros((count, 3))
     if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
-        return ClusterMotions(yaw, translation, np.zeros(count, dtype=bool))
+        return ClusterMotions(yaw, translation, np.zeros(count, dtype=bool), np.full(count, -1), np.zeros(count, np.int64))
     sizes1 = label_counts(clusters.labels1, count)
     sizes2 = label_counts(clusters.labels2, component_count(clusters))[clusters.parent]
     sizes = np.minimum(sizes1, sizes2)
@@ -429,7 +515,9 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     if candidates is not None:
         active &= candidates
     tree = cKDTree(points2) if tree is None else tree
-    translation = initial_translations(points1, points2, clusters, active, config, tree, previous)
+    carry = None if carried is None else carried_motions(clusters, carried, config)
+    translation = initial_translations(points1, points2, clusters, active, config, tree, previous,
+                                       None if carry is None else carry.translation)
     members = ranked_per_label(clusters.labels1, active, config.icp_points, priorities(len(points1), 2))
     source, labels = points1[members], clusters.labels1[members]
     allowed = clusters.parent[labels]
@@ -460,15 +548,67 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     floor = floors[clusters.parent]
     counted = np.maximum(label_counts(labels, count), 1)
     moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
-    if sensed is not None and moving.any():  # standing still once more, as the moved sensor samples it again
-        check = moving[labels]
+    continued = np.zeros(count, dtype=bool)
+    if carry is not None and (carry.usable & active & ~moving).any():
+        continued, yaw, translation, fit_moving = continue_carried(
+            source, labels, carry, active & ~moving, yaw, translation, fit_moving, fit_static, floor, config,
+            lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed, config, count, normals2, points2))
+    if sensed is not None and (moving | continued).any():  # standing still once more, as the moved sensor samples it
+        either = moving | continued
+        check = either[labels]
         resampled = static_fit(source[check] + height[check], sensed[members][check] + height[check], labels[check],
                                tree, clusters.labels2, allowed[check], config, count, normals2, points2,
                                floors[allowed][check])
-        fit_static = Fit(*(np.where(moving, again, first) for again, first in zip(resampled, fit_static)))
+        fit_static = Fit(*(np.where(either, again, first) for again, first in zip(resampled, fit_static)))
         moving &= explains(fit_moving, fit_static, believed, floor, counted, config)
+        continued &= no_worse(fit_moving, fit_static, floor, config)
+    streak, proven = np.where(moving, 0, -1), moving.astype(np.int64)  # a first sighting, or still
+    if carry is not None:  # a motion seen before: one more pair that proved it, or one more carried
+        streak = np.where(continued, carry.streak + 1, streak)
+        proven = np.where(continued, carry.proven, np.where(moving & carry.present, carry.proven + 1, proven))
+    moving |= continued
     yaw[~moving], translation[~moving] = 0.0, 0.0
-    return ClusterMotions(yaw, translation, moving)
+    return ClusterMotions(yaw, translation, moving, streak, proven)
+
+
+def carried_motions(clusters: Clusters, carried: Carried, config: RigidConfig) -> CarriedMotions:
+    """Per cluster, the mean motion its points carry from the previous pair (where enough of them carry one), the
+    longest streak and proof among them, and whether it may be carried on (not carried carry_pairs already, proven
+    by carry_proven pairs)."""
+    count = clusters.count
+    live = carried.streak >= 0
+    present = label_means(live.astype(np.float64), clusters.labels1, count) >= config.carry_share
+    translation = label_means(carried.motion, clusters.labels1, count, live.astype(np.float64))
+    translation[~present] = 0.0
+    streak, proven = np.full(count, -1), np.zeros(count, np.int64)
+    np.maximum.at(streak, clusters.labels1, np.where(live, carried.streak, -1))
+    np.maximum.at(proven, clusters.labels1, np.where(live, carried.proven, 0))
+    usable = present & (streak < config.carry_pairs) & (proven >= config.carry_proven)
+    return CarriedMotions(translation, present, usable, streak, proven)
+
+
+def continue_carried(source: np.ndarray, labels: np.ndarray, carry: CarriedMotions, candidates: np.ndarray,
+                     yaw: np.ndarray, translation: np.ndarray, fit_moving: Fit, fit_static: Fit, floor: np.ndarray,
+                     config: RigidConfig, quality) -> tuple[np.ndarray, np.ndarray, np.ndarray, Fit]:
+    """Among the candidate clusters (not shown moving by this pair), those that keep their carried motion: it (or
+    their own fitted motion, where the two agree) explains scan t+1 no worse than standing still and is no slower
+    than min_speed. Returns them, and the yaw, translation and fit with their motions put in."""
+    fit_carried = quality(yaw_translate(source, np.zeros(len(source)), carry.translation[labels]))
+    own = ((np.linalg.norm(translation - carry.translation, axis=1) <= config.carry_tolerance)
+           & (fit_moving.plane + fit_moving.residual <= fit_carried.plane + fit_carried.residual))
+    chosen = Fit(*(np.where(own, mine, theirs) for mine, theirs in zip(fit_moving, fit_carried)))
+    step = np.where(own[:, None], translation, carry.translation)
+    fast = np.linalg.norm(step[:, :2], axis=1) > config.min_speed * config.dt
+    kept = candidates & carry.usable & fast & no_worse(chosen, fit_static, floor, config)
+    return (kept, np.where(kept & ~own, 0.0, yaw), np.where(kept[:, None], step, translation),
+            Fit(*(np.where(kept, mine, theirs) for mine, theirs in zip(chosen, fit_moving))))
+
+
+def no_worse(fit_moving: Fit, fit_static: Fit, floor: np.ndarray, config: RigidConfig) -> np.ndarray:
+    """Per cluster, whether its motion lays it on the surfaces of scan t+1 (within the noise floor) and near its
+    points no worse than standing still, and explains all but max_unexplained of it."""
+    return ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
+            & (fit_moving.unexplained <= config.max_unexplained))
 
 
 def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.ndarray, counted: np.ndarray,
@@ -479,12 +619,11 @@ def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.n
     keep_point = np.where(believed, 1.0 - config.mask_gain, 1.0 - config.min_point_gain)
     margin = np.where(believed, 1.0, 1.0 + np.sqrt(config.min_cluster_points / counted))  # few points: wider margin
     misfit = fit_static.plane > floor * margin  # unless the mask already calls the cluster dynamic
-    no_worse = ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
-                & (fit_moving.unexplained <= config.max_unexplained))
     closer = fit_moving.residual < (1.0 - config.support_gain) * fit_static.residual  # not just sliding along planes
-    return no_worse & ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
-                                  | (fit_moving.residual < keep_point * fit_static.residual)))
-                       | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
+    proven = ((misfit & (((fit_moving.plane < keep * fit_static.plane) & closer)
+                         | (fit_moving.residual < keep_point * fit_static.residual)))
+              | (fit_static.unexplained - fit_moving.unexplained >= config.min_explained_gain))
+    return no_worse(fit_moving, fit_static, floor, config) & proven
 
 
 def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
@@ -540,7 +679,7 @@ def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw:
 
 def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, config: RigidConfig,
                   belief: np.ndarray | None, previous: np.ndarray | None = None,
-                  sensed: np.ndarray | None = None) -> tuple[Clusters, ClusterMotions]:
+                  sensed: np.ndarray | None = None, carried: Carried | None = None) -> tuple[Clusters, ClusterMotions]:
     """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
     surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own (`sensed`:
     the points as scan t saw them, before the ego compensation)."""
@@ -551,7 +690,7 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
     floors = noise_floors(surfaces, clusters, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
     motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous,
-                              sensed=sensed)
+                              sensed=sensed, carried=carried)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
     changed = still > floors[clusters.parent[clusters.labels1]]
@@ -575,10 +714,13 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
     # pieces are tried only where they miss the surfaces of their whole component, not just of their own piece
     fresh = (np.arange(split.count) >= offset) & (
         label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
-    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous, sensed)
+    more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous, sensed,
+                           carried)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
-                                 np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))))
+                                 np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))),
+                                 np.where(fresh, more.carried, np.pad(motions.carried, (0, pieces.count), constant_values=-1)),
+                                 np.where(fresh, more.proven, np.pad(motions.proven, (0, pieces.count))))
 
 
 def label_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
