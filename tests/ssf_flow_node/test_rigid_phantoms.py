@@ -5,7 +5,7 @@ The fixture holds three clusters of the rigid estimator's first pass on simulate
 seeds 4 and 1; hdl64e, the ego at 7.5 to 9 m/s): a piece of a building side 64 m away at a grazing angle, whose
 columns lie 1.6 m apart so that scan t+1 samples it one ego step further along (the matcher then finds a motion of
 one ego step); the end of such a wall 60 m away, where the beams that saw its last column find nothing in scan t+1;
-and a moving car 38 m away seen with 24 points. Each comes with its points (ego-compensated and as the sensor saw
+and a moving car 38 m away seen with 24 points (a second fixture holds two cars beside a crawling ego). Each comes with its points (ego-compensated and as the sensor saw
 them), its true step over the pair (after the ego motion), and the nearby points of scan t+1 with their normals and
 whether they belong to the cluster's joint component."""
 
@@ -52,6 +52,31 @@ def test_a_small_far_car_keeps_its_motion(resampled):
     step = np.load(FIXTURE)["car_step"]
     assert np.linalg.norm(step[:2]) > 0.25  # the car drives at least 2.5 m/s
     assert np.linalg.norm(motion.translation[0, :2] - step[:2]) < 0.1
+
+
+QUEUE_FIXTURE = Path(__file__).resolve().parent / "fixtures" / "queue_clusters.npz"
+
+
+@pytest.mark.parametrize("name", ["overtaking", "oncoming"])
+def test_a_car_beside_a_crawling_ego_is_not_taken_for_a_resampled_still_surface(name):
+    """Two cars of a queue scenario (stress_queue, tuning seeds 11 and 14; hdl64e, the ego crawling at 1.6-2 m/s): one
+    overtaking it 5 m away at 3.4 m/s, one going the other way at 1.9 m/s 17 m away. Their flanks slide along
+    themselves and scan t+1 samples them finer than resample_spacing but coarser than half the ego's short step: counted
+    as resampled still surfaces they stood still; now they keep their true motion."""
+    data = np.load(QUEUE_FIXTURE)
+    points1, sensed, points2, normals2, own2, floor, step = (
+        data[f"{name}_{field}"].astype(np.float64)
+        for field in ("points1", "sensed", "points2", "normals2", "own2", "floor", "step"))
+    clusters = Clusters(np.zeros(len(points1), np.int64), np.where(own2 > 0, 0, 1).astype(np.int64), 1, np.array([0]))
+
+    def motion(config: RigidConfig) -> ClusterMotions:
+        return cluster_motions(points1, points2, clusters, config, None, normals2, np.full(2, float(floor)),
+                               sensed=sensed)
+
+    assert np.linalg.norm(sensed - points1, axis=1).mean() < 0.25  # the ego's step: a crawl
+    assert not motion(RigidConfig(resample_spacing=0.0)).moving[0]  # resampled at any spacing: still
+    kept = motion(RigidConfig())
+    assert kept.moving[0] and np.linalg.norm(kept.translation[0, :2] - step[:2]) < 0.05
 
 
 def test_the_lowest_points_of_a_moving_object_move_with_it_and_the_ground_beside_it_stays():

@@ -60,6 +60,10 @@ class RigidConfig(Section):
                                  "more than this many times the scene's median miss, and its surfaces' own roughness, "
                                  "before its motion counts")
     inlier_gate: float = Field(0.3, gt=0.0, description="a point is explained by scan t+1 within this distance (m)")
+    resample_spacing: float = Field(0.3, ge=0.0, description="standing still counts the sensor's resampling of a "
+                                    "surface it slides along only where scan t+1 samples it along the slide at least "
+                                    "this coarsely (m): far walls at grazing angles; the finer-sampled flank of a car "
+                                    "moving with the ego (or overtaking it) would pass for still")
     min_explained_gain: float = Field(0.25, ge=0.0, le=1.0, description="or: share of a cluster's points a motion must "
                                       "newly explain")
     max_unexplained: float = Field(0.2, ge=0.0, le=1.0, description="a motion must explain all but this share of a "
@@ -636,13 +640,15 @@ def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: 
         return fit_of(point, plane, labels, count, config)
     # the sensor slid along the surfaces (standing still leaves most of the cluster on them, unlike a car ahead at the
     # ego's speed) and scan t+1 samples them along the slide no finer than half of it (far walls at grazing angles,
-    # unlike a car beside us at the ego's speed): there its beams land on a still surface's points up to a slide away
+    # unlike a car beside us at the ego's speed; and coarser than resample_spacing, unlike a car's flank moving with a
+    # crawling ego): there its beams land on a still surface's points up to a slide away
     resampled, resampled_plane = surface_distance(sensed, tree, points2, normals2, config.residual_cap, allowed,
                                                   labels2)
     slide = np.linalg.norm(sensed - still, axis=1)
     on_surface = np.nan_to_num(plane, nan=np.inf) < 0.5 * slide
     spacing = spacing_along(points2, tree, tree.query(still)[1], (sensed - still) / np.maximum(slide, 1e-9)[:, None])
-    slid = (spacing >= 0.5 * slide) & (label_means(on_surface.astype(np.float64), labels, count) > 0.5)[labels]
+    slid = ((spacing >= np.maximum(0.5 * slide, config.resample_spacing))
+            & (label_means(on_surface.astype(np.float64), labels, count) > 0.5)[labels])
     # each point where it was, or where the beam that saw it lands again if that lies closer to the points of scan
     # t+1 and no farther from its surfaces (beyond the noise floor)
     along = slid & (resampled < point) & (np.nan_to_num(resampled_plane, nan=np.inf)
