@@ -11,7 +11,8 @@ from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, vox
 from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
 from ssf_common.geometry.ground import ground_mask, height_above_ground
 from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed, measured_motion
-from ssf_common.geometry.labels import label_extents, label_means, label_sums_of_rows, pick_per_label, ragged_arange
+from ssf_common.geometry.labels import (label_extents, label_main_axes, label_means, label_spans, label_sums_of_rows,
+                                         pick_per_label, ragged_arange)
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, greedy_farthest_indices, grid_cells, sample_indices,
                                           voxel_indices)
@@ -110,9 +111,26 @@ def test_label_reductions_by_hand():
     np.testing.assert_allclose(label_means(values, labels, 4), [[1, 0, 0], [5, 5, 5], [2, 2, 0], [0, 0, 0]])
     np.testing.assert_allclose(label_means(values[:, 0], labels, 3, weights=np.array([1, 3, 1, 1, 1, 0.0])), [1.5, 5, 2])
     np.testing.assert_allclose(label_extents(values, labels, 4), [2, 0, 4, 0])
+    low, high = label_spans(values[:, 1], labels, 4)
+    np.testing.assert_allclose(low, [0, 5, 0, np.inf])
+    np.testing.assert_allclose(high, [0, 5, 4, -np.inf])
     np.testing.assert_array_equal(ragged_arange(np.array([2, 0, 3])), [0, 1, 0, 1, 2])
     picked = pick_per_label(labels, np.array([True, False, True]), 2, np.random.default_rng(0))
     assert sorted(labels[picked].tolist()) == [0, 0, 2, 2]
+
+
+def test_main_axes_follow_each_labels_longest_spread():
+    rng = np.random.default_rng(3)
+    along = rng.uniform(-2.0, 2.0, 200)
+    across = rng.uniform(-0.2, 0.2, 200)
+    angle = np.radians([30.0, -75.0])
+    labels = np.repeat([0, 1], 100)
+    direction = np.column_stack([np.cos(angle), np.sin(angle)])[labels]
+    normal = np.column_stack([-direction[:, 1], direction[:, 0]])
+    xy = along[:, None] * direction + across[:, None] * normal + np.array([5.0, -3.0])
+    axes = label_main_axes(xy, labels, 3)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", axes[:2], direction[[0, 100]])), 1.0, atol=1e-3)
+    np.testing.assert_allclose(np.linalg.norm(axes, axis=1), 1.0)
 
 
 def test_sampling_one_vocabulary():

@@ -43,16 +43,32 @@ def label_means(values: np.ndarray, labels: np.ndarray, count: int, weights: np.
     return sums / (safe if sums.ndim == 1 else safe[:, None])
 
 
+def label_spans(values: np.ndarray, labels: np.ndarray, count: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per label, the lowest and the highest of values (inf and -inf for empty labels)."""
+    values = np.asarray(values, dtype=np.float64)  # one column as float64: ufunc.at is 30x slower on 2-D or cast values
+    low, high = np.full(count, np.inf), np.full(count, -np.inf)
+    np.minimum.at(low, labels, values)
+    np.maximum.at(high, labels, values)
+    return low, high
+
+
 def label_extents(points: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
     """Per label, the larger side (m) of its horizontal axis-aligned bounding box; zero for empty labels."""
     sides = np.zeros(count)
-    for axis in (0, 1):  # one axis at a time, as float64: ufunc.at is 30x slower on 2-D or cast values
-        values = np.asarray(points[:, axis], dtype=np.float64)
-        low, high = np.full(count, np.inf), np.full(count, -np.inf)
-        np.minimum.at(low, labels, values)
-        np.maximum.at(high, labels, values)
+    for axis in (0, 1):
+        low, high = label_spans(points[:, axis], labels, count)
         sides = np.maximum(sides, np.where(np.isfinite(low), high - low, 0.0))
     return sides
+
+
+def label_main_axes(xy: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
+    """Per label, the unit horizontal direction along which its points spread most (the principal axis of their 2-D
+    covariance; x for empty labels)."""
+    centred = xy - label_means(xy, labels, count)[labels]
+    xx, xy_, yy = (label_means(a * b, labels, count) for a, b in
+                   ((centred[:, 0], centred[:, 0]), (centred[:, 0], centred[:, 1]), (centred[:, 1], centred[:, 1])))
+    angle = 0.5 * np.arctan2(2.0 * xy_, xx - yy)
+    return np.column_stack([np.cos(angle), np.sin(angle)])
 
 
 def ragged_arange(lengths: np.ndarray) -> np.ndarray:

@@ -14,7 +14,8 @@ from ssf_common.config import Section
 from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
+from ssf_common.geometry.labels import (label_counts, label_extents, label_main_axes, label_means, label_spans,
+                                         ragged_arange)
 from ssf_common.geometry.neighbours import may_be_near
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
@@ -22,6 +23,7 @@ from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
 from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, motion_gap
 
 
+FLAT_HEIGHT = 0.3  # m: a cluster flatter than this counts as this tall when its sampling spacing is estimated
 PAIR_HISTORY = 3  # pairs whose work is kept: the loop's next iteration on a pair may come after the next pair
 
 
@@ -83,6 +85,16 @@ class RigidConfig(Section):
     ego_tolerance: float = Field(0.1, ge=0.0, description="the ego motions aligned with and without the mask's dynamic "
                                  "points agree within this (m, over a 1 m radius); where they do not, the second must "
                                  "lie this much nearer the previous pair's to be taken")
+    end_spacings: float = Field(2.0, ge=0.0, description="a cluster alone in its component whose two ends moved alike "
+                                "along its main horizontal axis, by at least this many times its sampling spacing, moves "
+                                "by that shift where it explains scan t+1 no worse than standing still: a flank sliding "
+                                "along itself, which the fits cannot tell from still (0: never)")
+    end_agreement: float = Field(0.25, ge=0.0, le=1.0, description="the two ends' shifts agree within this share of "
+                                 "their mean")
+    end_points: int = Field(50, ge=2, description="points a cluster needs in scan t before its ends count")
+    end_occlusion: float = Field(0.5, gt=0.0, description="an end with points of scan t+1 this much nearer the sensor "
+                                 "beside it (within three sampling spacings) is the edge of what hides the cluster, not "
+                                 "the cluster's end (m)")
     carry_pairs: int = Field(10, ge=0, description="in a stream of scans, an object seen moving keeps its motion for at "
                              "most this many pairs running in which the pair alone cannot tell it from standing still (a "
                              "flank sliding along itself), while that motion explains scan t+1 no worse (0: never)")
@@ -502,8 +514,9 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                     carried: Carried | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
     standing still (as the moved sensor samples a still surface: `sensed`, the points where scan t saw them), and
-    standing still misses the surfaces by more than its component's noise floor (`floors`, m); or where the previous
-    pair of the stream saw the cluster moving (`carried`) and that motion explains them no worse than standing still."""
+    standing still misses the surfaces by more than its component's noise floor (`floors`, m); or where both of its
+    ends moved alike (a flank sliding along itself) or the previous pair of the stream saw the cluster moving
+    (`carried`), and that motion explains them no worse than standing still."""
     count = clusters.count
     yaw, translation = np.zeros(count), np.zeros((count, 3))
     if count == 0 or points1.shape[0] == 0 or points2.shape[0] == 0:
@@ -539,26 +552,40 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                                          labels[good], yaw, translation, count, config.point_weight,
                                                          max_yaw)
         yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
+    def quality(moved: np.ndarray) -> Fit:
+        return fit_quality(moved, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+
     moved = yaw_translate(source, yaw[labels], translation[labels])
-    fit_moving = fit_quality(moved, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    fit_moving = quality(moved)
     if previous is not None:  # the loop never trades a motion for one that fits worse
         yaw, translation, fit_moving = better_of(source, labels, previous[members], yaw, translation, fit_moving,
-                                                 lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed,
-                                                                       config, count, normals2, points2), max_yaw)
+                                                 quality, max_yaw)
         moved = yaw_translate(source, yaw[labels], translation[labels])
     height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
-    fit_static = fit_quality(source + height, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+    fit_static = quality(source + height)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
     floor = floors[clusters.parent]
     counted = np.maximum(label_counts(labels, count), 1)
     moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
+    ends = np.zeros(count, dtype=bool)  # moved by the shift of their two ends: flanks sliding along themselves
+    spare = active & ~moving & (sizes1 >= config.end_points)
+    if config.end_spacings > 0 and spare.any():
+        shift = end_shifts(points1, points2, clusters, spare, config)
+        shifted = np.linalg.norm(shift[:, :2], axis=1) > config.min_speed * config.dt
+        if shifted.any():  # judged on those clusters' points only
+            on = shifted[labels]
+            fit_ends = fit_quality(yaw_translate(source[on], np.zeros(np.count_nonzero(on)), shift[labels[on]]),
+                                   labels[on], tree, clusters.labels2, allowed[on], config, count, normals2, points2)
+            ends = spare & shifted & no_worse(fit_ends, fit_static, floor, config)
+            yaw, translation = np.where(ends, 0.0, yaw), np.where(ends[:, None], shift, translation)
+            fit_moving = Fit(*(np.where(ends, mine, theirs) for mine, theirs in zip(fit_ends, fit_moving)))
     continued = np.zeros(count, dtype=bool)
-    if carry is not None and (carry.usable & active & ~moving).any():
+    if carry is not None and (carry.usable & active & ~moving & ~ends).any():
         continued, yaw, translation, fit_moving = continue_carried(
-            source, labels, carry, active & ~moving, yaw, translation, fit_moving, fit_static, floor, config,
-            lambda x: fit_quality(x, labels, tree, clusters.labels2, allowed, config, count, normals2, points2))
-    if sensed is not None and (moving | continued).any():  # standing still once more, as the moved sensor samples it
-        either = moving | continued
+            source, labels, carry, active & ~moving & ~ends, yaw, translation, fit_moving, fit_static, floor, config,
+            quality)
+    if sensed is not None and (moving | continued | ends).any():  # standing still once more, as the sensor samples it
+        either = moving | continued | ends
         check = either[labels]
         resampled = static_fit(source[check] + height[check], sensed[members][check] + height[check], labels[check],
                                tree, clusters.labels2, allowed[check], config, count, normals2, points2,
@@ -566,6 +593,8 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         fit_static = Fit(*(np.where(either, again, first) for again, first in zip(resampled, fit_static)))
         moving &= explains(fit_moving, fit_static, believed, floor, counted, config)
         continued &= no_worse(fit_moving, fit_static, floor, config)
+        ends &= no_worse(fit_moving, fit_static, floor, config)
+    moving |= ends
     streak, proven = np.where(moving, 0, -1), moving.astype(np.int64)  # a first sighting, or still
     if carry is not None:  # a motion seen before: one more pair that proved it, or one more carried
         streak = np.where(continued, carry.streak + 1, streak)
@@ -573,6 +602,57 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     moving |= continued
     yaw[~moving], translation[~moving] = 0.0, 0.0
     return ClusterMotions(yaw, translation, moving, streak, proven)
+
+
+def end_shifts(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, candidates: np.ndarray,
+               config: RigidConfig) -> np.ndarray:
+    """Per candidate cluster alone in its component, the shift along its main horizontal axis by which both of its ends
+    moved from scan t to scan t+1, where the two agree within end_agreement and the shift is end_spacings times its
+    sampling spacing or more (zero elsewhere): a flank's ends, where its sides say nothing."""
+    count = clusters.count
+    shift = np.zeros((count, 3))
+    alone = candidates & (np.bincount(clusters.parent, minlength=component_count(clusters)) == 1)[clusters.parent]
+    on1 = (clusters.labels1 >= 0) & alone[np.maximum(clusters.labels1, 0)]
+    if not on1.any():
+        return shift
+    cluster_of = np.full(component_count(clusters), -1)  # each component's only cluster
+    cluster_of[clusters.parent[alone]] = np.flatnonzero(alone)
+    on2 = (clusters.labels2 >= 0) & (cluster_of[np.maximum(clusters.labels2, 0)] >= 0)
+    labels1, labels2 = clusters.labels1[on1], cluster_of[clusters.labels2[on2]]
+    axis = label_main_axes(points1[on1, :2], labels1, count)
+    low1, high1 = label_spans(np.einsum("ij,ij->i", points1[on1, :2], axis[labels1]), labels1, count)
+    low2, high2 = label_spans(np.einsum("ij,ij->i", points2[on2, :2], axis[labels2]), labels2, count)
+    bottom, top = label_spans(points1[on1, 2], labels1, count)
+    with np.errstate(invalid="ignore"):  # empty labels: inf - inf
+        # a flank of length L and height H sampled with n points has them about sqrt(L H / n) apart
+        spacing = np.sqrt((high1 - low1) * np.maximum(top - bottom, FLAT_HEIGHT) / np.maximum(label_counts(labels1, count), 1))
+        lows, highs = low2 - low1, high2 - high1
+        middle = 0.5 * (lows + highs)
+        agree = (alone & np.isfinite(middle) & (np.abs(lows - highs) <= config.end_agreement * np.abs(middle))
+                 & (np.abs(middle) >= config.end_spacings * spacing))
+    if agree.any():  # a window through a gap between nearer things slides along a wall as the sensor moves: not ends
+        agree[agree] = ~hidden_ends(points2, on2, labels2, axis, np.flatnonzero(agree), spacing, config.end_occlusion)
+    shift[agree, :2] = middle[agree, None] * axis[agree]
+    return shift
+
+
+def hidden_ends(points2: np.ndarray, on2: np.ndarray, labels2: np.ndarray, axis: np.ndarray, clusters: np.ndarray,
+                spacing: np.ndarray, margin: float) -> np.ndarray:
+    """Per given cluster, whether either end of its points in scan t+1 (`points2[on2]`, labelled `labels2`) along its
+    axis has points of scan t+1 nearer the sensor by `margin` within three sampling spacings of it in azimuth."""
+    azimuth2 = np.arctan2(points2[:, 1], points2[:, 0])
+    range2 = np.hypot(points2[:, 0], points2[:, 1])
+    own = np.flatnonzero(on2)
+    hidden = np.zeros(len(clusters), dtype=bool)
+    for row, cluster in enumerate(clusters):
+        members = own[labels2 == cluster]
+        along = points2[members, :2] @ axis[cluster]
+        for end in members[[np.argmin(along), np.argmax(along)]]:
+            window = 3.0 * spacing[cluster] / max(range2[end], 1e-6)
+            beside = np.abs(np.angle(np.exp(1j * (azimuth2 - azimuth2[end])))) <= window
+            beside[members] = False
+            hidden[row] |= bool(np.any(beside & (range2 < range2[end] - margin)))
+    return hidden
 
 
 def carried_motions(clusters: Clusters, carried: Carried, config: RigidConfig) -> CarriedMotions:
