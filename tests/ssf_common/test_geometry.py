@@ -11,8 +11,8 @@ from ssf_common.geometry.clustering import dbscan, hdbscan, relabel_by_size, vox
 from ssf_common.geometry.fitting import batched_kabsch, planar_kabsch, planar_plane_step, weighted_kabsch
 from ssf_common.geometry.ground import ground_mask, height_above_ground
 from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed, measured_motion
-from ssf_common.geometry.labels import (label_extents, label_main_axes, label_means, label_spans, label_sums_of_rows,
-                                         pick_per_label, ragged_arange)
+from ssf_common.geometry.labels import (label_extents, label_main_axes, label_means, label_quantiles, label_spans,
+                                         label_sums_of_rows, pick_per_label, ragged_arange)
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, greedy_farthest_indices, grid_cells, sample_indices,
                                           voxel_indices)
@@ -114,6 +114,10 @@ def test_label_reductions_by_hand():
     low, high = label_spans(values[:, 1], labels, 4)
     np.testing.assert_allclose(low, [0, 5, 0, np.inf])
     np.testing.assert_allclose(high, [0, 5, 4, -np.inf])
+    np.testing.assert_allclose(label_quantiles(values[:, 0], labels, 4), [2, 5, 2, 0])
+    np.testing.assert_allclose(label_quantiles(values[:, 0], labels, 4, quantile=0.0), [0, 5, 1, 0])
+    np.testing.assert_allclose(label_quantiles(values[:, 0], labels, 4, quantile=1.0), [2, 5, 3, 0])
+    np.testing.assert_allclose(label_quantiles(np.zeros(0), np.zeros(0, dtype=np.int64), 2), [0, 0])
     np.testing.assert_array_equal(ragged_arange(np.array([2, 0, 3])), [0, 1, 0, 1, 2])
     picked = pick_per_label(labels, np.array([True, False, True]), 2, np.random.default_rng(0))
     assert sorted(labels[picked].tolist()) == [0, 0, 2, 2]

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 
 from ssf_common.errors import DataError
-from ssf_flow_node.core.preprocess import (PreprocessConfig, Sampling, check_mask, check_scan, downsample,
-                                           ground_mask, propagate, propagate_motion)
+from ssf_common.geometry.ground import ground_mask
+from ssf_flow_node.core.preprocess import (PreprocessConfig, Sampling, check_mask, check_scan, downsample, propagate,
+                                           propagate_motion)
 
 
 def scan(count=20000, seed=0):
@@ -79,6 +80,28 @@ def test_ground_mask_separates_ground_and_box():
     flags = ground_mask(np.concatenate([ground, box]))
     assert flags[:4000].mean() > 0.97
     assert flags[4000:].mean() < 0.05
+
+
+def test_structure_above_every_road_user_leaves_the_flow_sample_but_joins_the_ego_registration():
+    rng = np.random.default_rng(0)
+    ground = np.column_stack([rng.uniform(-20, 20, (4000, 2)), rng.normal(-1.8, 0.02, 4000)])
+    car = np.column_stack([rng.uniform(4, 8, (3000, 1)), rng.uniform(-6, -4, (3000, 1)), rng.uniform(-1.6, 0.0, 3000)])
+    facade = np.column_stack([rng.uniform(-15, 15, (6000, 1)), np.full((6000, 1), 12.0), rng.uniform(-1.6, 30.0, 6000)])
+    points = np.concatenate([ground, car, facade]).astype(np.float32)
+    height = points[:, 2] + 1.8
+    base = dict(points=1000, max_range=100.0, remove_ground=True, ego_ground_points=100)
+    kept = downsample(points, PreprocessConfig(**base), np.random.default_rng(0), height)
+    assert (height[kept.indices] > 4.5).mean() > 0.5  # the facade's upper floors take most of the budget
+    config = PreprocessConfig(**base, object_height=4.5, ego_structure_points=200)
+    sample = downsample(points, config, np.random.default_rng(0), height)
+    assert height[sample.indices].max() < 4.5 and height[sample.indices].min() >= 0.3
+    assert np.count_nonzero((sample.indices >= 4000) & (sample.indices < 7000)) > 1.8 * np.count_nonzero(
+        (kept.indices >= 4000) & (kept.indices < 7000))  # the car gets the points the upper floors had
+    ego_only = height[sample.ground]
+    assert np.count_nonzero(ego_only < 0.3) == 100 and np.count_nonzero(ego_only >= 4.5) == 200
+    shared = downsample(points, PreprocessConfig(**{**base, "points": 64}, points_share=0.3, object_height=4.5),
+                        np.random.default_rng(0), height)
+    assert shared.indices.size == int(0.3 * np.count_nonzero(height >= 0.3))  # the budget counts the upper floors too
 
 
 def test_bad_scans_and_masks_are_one_line_errors():

@@ -22,7 +22,8 @@ ESTIMATORS = ("zero", "ego", "rigid", "asf")
 # pin its height, so a short schedule on half the usual refinement points converges: static EPE within 0.5 mm), and
 # every other point gets its flow from them. Pairs already cut
 # (`ssf eval flow`) use the plain defaults.
-WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 1000.0, "range_balance": True, "points_share": 0.3},
+WHOLE_SCAN = {"preprocess": {"remove_ground": True, "max_range": 1000.0, "range_balance": True, "points_share": 0.3,
+                             "object_height": 4.5},
               "registration": {"source_points": 1024, "refine_points": 4096, "refine_iterations": 20, "tolerance": 1e-4}}
 
 

@@ -10,7 +10,7 @@ from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
 from ssf_common.errors import DataError
-from ssf_common.geometry.ground import ground_mask
+from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.neighbours import may_be_near, propagate
 from ssf_common.geometry.sampling import Sampling, sample_indices
 
@@ -20,8 +20,9 @@ class PreprocessConfig(Section):
 
     points: int = Field(8192, ge=64, description="points kept per scan (at least, with points_share)")
     points_share: float = Field(0.0, ge=0.0, le=1.0, description="dense scans keep this share of their candidate points "
-                                "(cropped, ground removed) when that is more than `points`: the budget follows the "
-                                "sensor's density instead of one sensor's (0: always `points`)")
+                                "(cropped, ground removed; those above object_height count, though the budget goes to "
+                                "the points below) when that is more than `points`: the budget follows the sensor's "
+                                "density instead of one sensor's (0: always `points`)")
     sampling: Sampling = Sampling.RANDOM
     voxel_size: float = Field(0.1, gt=0.0, description="voxel edge (m) for voxel sampling")
     min_range: float = Field(0.0, ge=0.0, description="points closer to the sensor are dropped (m)")
@@ -29,6 +30,13 @@ class PreprocessConfig(Section):
     remove_ground: bool = Field(False, description="spend the N points on non-ground structure only")
     ego_ground_points: int = Field(2048, ge=0, description="where the ground is removed, this many ground points still "
                                    "join the ego registration (the ground pins height, roll and pitch)")
+    object_height: float = Field(0.0, ge=0.0, description="where the ground is removed, points higher above it than this "
+                                 "(m) are structure no road user reaches (the tallest trucks and buses stand ~4.2 m): they "
+                                 "move with the ego and leave their share of the point budget to the band where things "
+                                 "move (a sensor that looks up, e.g. a 45-degree OS1-128, sees mostly facades; 0: keep "
+                                 "them)")
+    ego_structure_points: int = Field(2048, ge=0, description="of the points above object_height, this many still join "
+                                      "the ego registration (far facades pin the heading)")
     range_balance: bool = Field(False, description="sample with a weight growing with the squared range, so that far "
                                 "objects keep their few points and near surfaces are thinned (whole scans)")
     ground_cell: float = Field(2.0, gt=0.0, description="grid cell (m) of the ground height estimate")
@@ -50,7 +58,7 @@ class Sample(NamedTuple):
 
     indices: np.ndarray  # (M,) int64
     points: np.ndarray  # (M, 3) float32
-    ground: np.ndarray | None = None  # (G,) int64 indices of ground points
+    ground: np.ndarray | None = None  # (G,) int64 indices of ground points (and of structure above object_height)
 
 
 def check_scan(points: np.ndarray, name: str) -> np.ndarray:
@@ -93,15 +101,23 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
     above the ground of the whole scan, when already known)."""
     candidates = crop(points, config)
     ground = None
+    budget = None
     if config.remove_ground and candidates.size:
-        flat = (ground_mask(points[candidates], config.ground_cell, config.ground_height, config.ground_zones)
-                if height is None else height[candidates] < config.ground_height)
+        above = (height_above_ground(points[candidates], config.ground_cell, config.ground_zones)
+                 if height is None else height[candidates])
+        flat = above < config.ground_height
         ground = candidates[flat]
         ground = ground[rng.permutation(ground.size)[: config.ego_ground_points]]
+        high = above >= max(config.object_height, config.ground_height)
+        if config.object_height > 0 and (~flat & ~high).any():  # structure above every road user: a few points for
+            budget = point_budget(np.count_nonzero(~flat), config)  # the ego; its share of the budget goes to the band
+            lifted = candidates[high]
+            ground = np.concatenate([ground, lifted[rng.permutation(lifted.size)[: config.ego_structure_points]]])
+            flat |= high
         candidates = candidates[~flat]
     if candidates.size == 0:
         raise DataError(f"scan has no points between {config.min_range} m and {config.max_range} m")
-    budget = point_budget(candidates.size, config)
+    budget = point_budget(candidates.size, config) if budget is None else budget
     if config.range_balance and candidates.size > budget:
         candidates = np.sort(candidates[range_balanced(points[candidates], budget, rng)])
     candidates = candidates[sample_indices(points[candidates], budget, rng, config.sampling, config.voxel_size)]

@@ -14,8 +14,8 @@ from ssf_common.config import Section
 from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.labels import (label_counts, label_extents, label_main_axes, label_means, label_spans,
-                                         ragged_arange)
+from ssf_common.geometry.labels import (label_counts, label_extents, label_main_axes, label_means, label_quantiles,
+                                         label_spans, ragged_arange)
 from ssf_common.geometry.neighbours import may_be_near
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
@@ -809,20 +809,11 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
                                  np.where(fresh, more.proven, np.pad(motions.proven, (0, pieces.count))))
 
 
-def label_medians(values: np.ndarray, labels: np.ndarray, count: int) -> np.ndarray:
-    """Per label, the median of values (zero for empty labels)."""
-    order = np.lexsort((values, labels))
-    sizes = label_counts(labels, count)
-    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-    middle = values[order][np.minimum(starts + sizes // 2, max(len(values) - 1, 0))] if len(values) else np.zeros(count)
-    return np.where(sizes > 0, middle, 0.0)
-
-
 def noise_floors(surfaces: Surfaces, clusters: Clusters, noise: float, config: RigidConfig) -> np.ndarray:
     """Per component, the miss (m) below which standing still explains it: the scene's median miss, the component's
     own roughness (the median distance of scan t+1's points from their neighbours' surfaces) and half a step at
     min_speed."""
-    rough = label_medians(surfaces.roughness, clusters.labels2, component_count(clusters))
+    rough = label_quantiles(surfaces.roughness, clusters.labels2, component_count(clusters), 0.5)
     return np.maximum(config.surface_noise * np.maximum(rough, noise), 0.5 * config.min_speed * config.dt)
 
 
