@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ssf_flow_node.core.rigid import Clusters, RigidConfig, cluster_motions
+from ssf_flow_node.core.rigid import Bands, Clusters, RigidConfig, cluster_motions
 
 
 def flank(start: float, length: float, spacing: float) -> np.ndarray:
@@ -15,11 +15,11 @@ def flank(start: float, length: float, spacing: float) -> np.ndarray:
     return np.column_stack([grid[:, 0], np.full(len(grid), 3.0), grid[:, 1]])
 
 
-def motion_of(points1: np.ndarray, points2: np.ndarray, config: RigidConfig):
+def motion_of(points1: np.ndarray, points2: np.ndarray, config: RigidConfig, bands: Bands | None = None):
     """The one cluster's motion (one cluster, one component, side normals)."""
     clusters = Clusters(np.zeros(len(points1), np.int64), np.zeros(len(points2), np.int64), 1, np.array([0]))
     normals2 = np.tile([0.0, 1.0, 0.0], (len(points2), 1))
-    return cluster_motions(points1, points2, clusters, config, None, normals2, np.full(1, 0.025))
+    return cluster_motions(points1, points2, clusters, config, None, normals2, np.full(1, 0.025), bands=bands)
 
 
 def test_a_flank_whose_ends_moved_moves_by_their_shift():
@@ -29,6 +29,18 @@ def test_a_flank_whose_ends_moved_moves_by_their_shift():
     motion = motion_of(points1, points2, RigidConfig())
     assert motion.moving[0]
     np.testing.assert_allclose(motion.translation[0, :2], [0.4, 0.0], atol=0.02)
+
+
+def test_a_thinned_near_flank_finds_its_ends_in_the_whole_scans():
+    """A side 2.5 m away keeps ~1 % of its points after the range-balanced sample: their outermost ones lie up to a
+    spacing (~0.25 m) from the ends, each scan's elsewhere, so only the whole scans tell where the ends are."""
+    whole1, whole2 = flank(0.0, 4.5, 0.03), flank(0.4, 4.5, 0.03)
+    rng = np.random.default_rng(4)
+    points1, points2 = (whole[rng.choice(len(whole), 110, replace=False)] for whole in (whole1, whole2))
+    assert not motion_of(points1, points2, RigidConfig()).moving[0]  # the sampled ends disagree
+    motion = motion_of(points1, points2, RigidConfig(), Bands(whole1, whole2))
+    assert motion.moving[0]
+    np.testing.assert_allclose(motion.translation[0, :2], [0.4, 0.0], atol=0.03)
 
 
 def test_ends_that_disagree_or_move_less_than_the_sampling_tells_say_nothing():

@@ -41,6 +41,7 @@ class PreparedPair(NamedTuple):
     sample2: Sample
     mask: np.ndarray | None
     height1: np.ndarray | None = None  # where the ground is split: each point of scan t's height above the ground
+    height2: np.ndarray | None = None  # and of scan t+1
 
 
 class PreparedScan(NamedTuple):
@@ -102,7 +103,7 @@ def prepare(pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None, config: P
         scan1, scan2 = prepare_scan(pc1, "scan t", config), prepare_scan(pc2, "scan t+1", config)
     mask = check_mask(mask, scan1.xyz.shape[0])
     return PreparedPair(scan1.xyz, scan2.xyz, scan1.sample, scan2.sample,
-                        None if mask is None else mask[scan1.sample.indices], scan1.height)
+                        None if mask is None else mask[scan1.sample.indices], scan1.height, scan2.height)
 
 
 def finish(pair: PreparedPair, sample_flow: np.ndarray, ego: np.ndarray, config: PreprocessConfig,

@@ -85,6 +85,9 @@ class RigidConfig(Section):
     ego_tolerance: float = Field(0.1, ge=0.0, description="the ego motions aligned with and without the mask's dynamic "
                                  "points agree within this (m, over a 1 m radius); where they do not, the second must "
                                  "lie this much nearer the previous pair's to be taken")
+    end_whole: bool = Field(True, description="where the ground is split, the ends of a flank are found among all the "
+                            "points of the whole scans within a sampling spacing of its sampled ones, not among the "
+                            "sampled ones alone (a near flank thinned by the range-balanced sample)")
     end_spacings: float = Field(2.0, ge=0.0, description="a cluster alone in its component whose two ends moved alike "
                                 "along its main horizontal axis, by at least this many times its sampling spacing, moves "
                                 "by that shift where it explains scan t+1 no worse than standing still: a flank sliding "
@@ -116,6 +119,14 @@ class Clusters(NamedTuple):
     labels2: np.ndarray
     count: int
     parent: np.ndarray
+
+
+class Bands(NamedTuple):
+    """The whole scans' points between the ground and object_height (scan t ego-compensated), where the sample is too
+    coarse to say where a flank ends."""
+
+    points1: np.ndarray
+    points2: np.ndarray
 
 
 class ClusterMotions(NamedTuple):
@@ -171,6 +182,7 @@ class PairState:
     all_surfaces: Surfaces  # all of scan t+1
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
     low: Plan | None  # those points seen from above
+    bands: Bands | None  # the whole scans' non-ground points below object_height (scan t as sensed)
     prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
     base_ego: np.ndarray | None = None  # the ego motion aligned on every point
     ego: np.ndarray | None = None  # the ego motion of the last estimate with a mask (else the one on every point)
@@ -220,8 +232,9 @@ class RigidFlowEstimator:
         #    pair saw moving keeps that motion where this pair cannot tell it from standing still
         belief = None if masked is None else masked[above1]
         previous = None if state.motion is None else state.motion[above1]
+        bands = None if state.bands is None else state.bands._replace(points1=transform_points(ego, state.bands.points1))
         clusters, motions = split_motions(compensated[above1], state.surfaces, clusters, self.config, belief, previous,
-                                          points1[above1], None if carried is None else carried.take(above1))
+                                          points1[above1], None if carried is None else carried.take(above1), bands)
         # 4. every point moves with its cluster (low points next to a moving cluster where its motion explains them
         #    better), or with the scene
         labels = np.full(points1.shape[0], -1)
@@ -267,12 +280,15 @@ class RigidFlowEstimator:
         normals = matcher.normals()[: points2.shape[0]] if self.config.plane else None
         every = surfaces_of(points2, normals)
         above = every if above2.all() else surfaces_of(points2[above2], None if normals is None else normals[above2])
-        ground1, low = None, None
+        ground1, low, bands = None, None, None
         if self.preprocess.remove_ground:  # whole scans: points on the ground take an object's motion only under it
             ground1 = pair.height1 < self.config.ground_clearance
             low = Plan(pair.pc1, np.flatnonzero(ground1))
-        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low, prior,
-                               next_key=fingerprint(pc2))
+            if self.config.end_whole:
+                bands = Bands(band_points(pair.pc1, pair.height1, self.preprocess),
+                              band_points(pair.pc2, pair.height2, self.preprocess))
+        self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low, bands,
+                               prior, next_key=fingerprint(pc2))
         if previous is not None and self.config.carry_pairs > 0:  # the stream's previous pair: its motions go on
             self.state.carried = carry_motions(previous, points1, self.config.carry_radius)
         self.states[key] = self.state
@@ -511,7 +527,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                     belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
                     tree: cKDTree | None = None, candidates: np.ndarray | None = None,
                     previous: np.ndarray | None = None, sensed: np.ndarray | None = None,
-                    carried: Carried | None = None) -> ClusterMotions:
+                    carried: Carried | None = None, bands: Bands | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
     standing still (as the moved sensor samples a still surface: `sensed`, the points where scan t saw them), and
     standing still misses the surfaces by more than its component's noise floor (`floors`, m); or where both of its
@@ -570,7 +586,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     ends = np.zeros(count, dtype=bool)  # moved by the shift of their two ends: flanks sliding along themselves
     spare = active & ~moving & (sizes1 >= config.end_points)
     if config.end_spacings > 0 and spare.any():
-        shift = end_shifts(points1, points2, clusters, spare, config)
+        shift = end_shifts(points1, points2, clusters, spare, config, bands)
         shifted = np.linalg.norm(shift[:, :2], axis=1) > config.min_speed * config.dt
         if shifted.any():  # judged on those clusters' points only
             on = shifted[labels]
@@ -605,10 +621,11 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
 
 
 def end_shifts(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, candidates: np.ndarray,
-               config: RigidConfig) -> np.ndarray:
+               config: RigidConfig, bands: Bands | None = None) -> np.ndarray:
     """Per candidate cluster alone in its component, the shift along its main horizontal axis by which both of its ends
     moved from scan t to scan t+1, where the two agree within end_agreement and the shift is end_spacings times its
-    sampling spacing or more (zero elsewhere): a flank's ends, where its sides say nothing."""
+    sampling spacing or more (zero elsewhere): a flank's ends, where its sides say nothing. With the whole scans'
+    `bands`, the ends and the spacing are those of all the points within a sampling spacing of the cluster's."""
     count = clusters.count
     shift = np.zeros((count, 3))
     alone = candidates & (np.bincount(clusters.parent, minlength=component_count(clusters)) == 1)[clusters.parent]
@@ -620,12 +637,19 @@ def end_shifts(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, can
     on2 = (clusters.labels2 >= 0) & (cluster_of[np.maximum(clusters.labels2, 0)] >= 0)
     labels1, labels2 = clusters.labels1[on1], cluster_of[clusters.labels2[on2]]
     axis = label_main_axes(points1[on1, :2], labels1, count)
-    low1, high1 = label_spans(np.einsum("ij,ij->i", points1[on1, :2], axis[labels1]), labels1, count)
-    low2, high2 = label_spans(np.einsum("ij,ij->i", points2[on2, :2], axis[labels2]), labels2, count)
+    along1, along2 = (np.einsum("ij,ij->i", points[:, :2], axis[labels]) for points, labels in
+                      ((points1[on1], labels1), (points2[on2], labels2)))
+    low1, high1 = label_spans(along1, labels1, count)
+    low2, high2 = label_spans(along2, labels2, count)
     bottom, top = label_spans(points1[on1, 2], labels1, count)
     with np.errstate(invalid="ignore"):  # empty labels: inf - inf
         # a flank of length L and height H sampled with n points has them about sqrt(L H / n) apart
         spacing = np.sqrt((high1 - low1) * np.maximum(top - bottom, FLAT_HEIGHT) / np.maximum(label_counts(labels1, count), 1))
+        if bands is not None:  # the sample's outermost points lie up to a spacing from the ends
+            reach = np.where(np.isfinite(spacing), np.minimum(spacing, config.cluster_voxel), 0.0)
+            low1, high1, denser = band_ends(bands.points1, points1[on1], labels1, along1, low1, high1, axis, reach)
+            low2, high2, _ = band_ends(bands.points2, points2[on2], labels2, along2, low2, high2, axis, reach)
+            spacing = spacing / np.sqrt(np.maximum(denser, 1.0))
         lows, highs = low2 - low1, high2 - high1
         middle = 0.5 * (lows + highs)
         agree = (alone & np.isfinite(middle) & (np.abs(lows - highs) <= config.end_agreement * np.abs(middle))
@@ -634,6 +658,33 @@ def end_shifts(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, can
         agree[agree] = ~hidden_ends(points2, on2, labels2, axis, np.flatnonzero(agree), spacing, config.end_occlusion)
     shift[agree, :2] = middle[agree, None] * axis[agree]
     return shift
+
+
+def band_ends(band: np.ndarray, sampled: np.ndarray, labels: np.ndarray, along: np.ndarray, low: np.ndarray,
+              high: np.ndarray, axis: np.ndarray, reach: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per label, where along its axis the band's points within `reach` of its sampled points near either end (two
+    reaches from it or less) end, and how many band points lie there per such sampled point (the ends found in the
+    sample, inf and -inf, and zero where none lie there)."""
+    count = len(low)
+    outer = (along <= low[labels] + 2.0 * reach[labels]) | (along >= high[labels] - 2.0 * reach[labels])
+    sampled, labels = sampled[outer], labels[outer]
+    cap = max(float(reach.max(initial=0.0)), 1e-9)
+    near = np.flatnonzero(may_be_near(sampled, band, cap))
+    gap, index = cKDTree(sampled).query(band[near], distance_upper_bound=cap)
+    found = np.isfinite(gap)
+    label = labels[index[found]]
+    inside = gap[found] <= reach[label]
+    points, label = band[near[found][inside]], label[inside]
+    ends_low, ends_high = label_spans(np.einsum("ij,ij->i", points[:, :2], axis[label]), label, count)
+    seen = label_counts(label, count) > 0
+    density = label_counts(label, count) / np.maximum(label_counts(labels, count), 1)
+    return np.where(seen, ends_low, low), np.where(seen, ends_high, high), density
+
+
+def band_points(points: np.ndarray, height: np.ndarray, config: PreprocessConfig) -> np.ndarray:
+    """A whole scan's points above the ground and below object_height (all above the ground where that is 0)."""
+    top = config.object_height if config.object_height > 0 else np.inf
+    return points[(height >= config.ground_height) & (height < max(top, config.ground_height))]
 
 
 def hidden_ends(points2: np.ndarray, on2: np.ndarray, labels2: np.ndarray, axis: np.ndarray, clusters: np.ndarray,
@@ -765,7 +816,8 @@ def better_of(source: np.ndarray, labels: np.ndarray, previous: np.ndarray, yaw:
 
 def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, config: RigidConfig,
                   belief: np.ndarray | None, previous: np.ndarray | None = None,
-                  sensed: np.ndarray | None = None, carried: Carried | None = None) -> tuple[Clusters, ClusterMotions]:
+                  sensed: np.ndarray | None = None, carried: Carried | None = None,
+                  bands: Bands | None = None) -> tuple[Clusters, ClusterMotions]:
     """Motions of the clusters; then components whose clusters stay still although enough of their points miss the
     surfaces of scan t+1 are clustered with the finer voxel, and their pieces get motions of their own (`sensed`:
     the points as scan t saw them, before the ego compensation)."""
@@ -776,7 +828,7 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
     floors = noise_floors(surfaces, clusters, float(np.median(still[near])) if near.any() else 0.0, config)
     still = np.where(near, still, 0.0)  # points with nothing near them say nothing
     motions = cluster_motions(points1, points2, clusters, config, belief, normals2, floors, tree, previous=previous,
-                              sensed=sensed, carried=carried)
+                              sensed=sensed, carried=carried, bands=bands)
     if config.split_voxel <= 0 or clusters.count == 0:
         return clusters, motions
     changed = still > floors[clusters.parent[clusters.labels1]]
@@ -801,7 +853,7 @@ def split_motions(points1: np.ndarray, surfaces: Surfaces, clusters: Clusters, c
     fresh = (np.arange(split.count) >= offset) & (
         label_means(still, split.labels1, split.count, near.astype(np.float64)) > floors[split.parent])
     more = cluster_motions(points1, points2, split, config, belief, normals2, floors, tree, fresh, previous, sensed,
-                           carried)
+                           carried, bands)
     return split, ClusterMotions(np.where(fresh, more.yaw, np.pad(motions.yaw, (0, pieces.count))),
                                  np.where(fresh[:, None], more.translation, np.pad(motions.translation, ((0, pieces.count), (0, 0)))),
                                  np.where(fresh, more.moving, np.pad(motions.moving, (0, pieces.count))),
