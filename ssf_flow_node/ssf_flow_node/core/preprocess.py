@@ -108,7 +108,7 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
         flat = above < config.ground_height
         ground = candidates[flat]
         ground = ground[rng.permutation(ground.size)[: config.ego_ground_points]]
-        high = above >= max(config.object_height, config.ground_height)
+        high = above >= object_top(config)
         if config.object_height > 0 and (~flat & ~high).any():  # structure above every road user: a few points for
             budget = point_budget(np.count_nonzero(~flat), config)  # the ego; its share of the budget goes to the band
             lifted = candidates[high]
@@ -122,6 +122,11 @@ def downsample(points: np.ndarray, config: PreprocessConfig, rng: np.random.Gene
         candidates = np.sort(candidates[range_balanced(points[candidates], budget, rng)])
     candidates = candidates[sample_indices(points[candidates], budget, rng, config.sampling, config.voxel_size)]
     return Sample(candidates.astype(np.int64), points[candidates], None if ground is None else np.sort(ground))
+
+
+def object_top(config: PreprocessConfig) -> float:
+    """Height above the ground (m) from which points are structure no road user reaches (inf where object_height is 0)."""
+    return max(config.object_height, config.ground_height) if config.object_height > 0 else np.inf
 
 
 def point_budget(candidates: int, config: PreprocessConfig) -> int:

@@ -19,7 +19,7 @@ from ssf_common.geometry.labels import (label_counts, label_extents, label_main_
 from ssf_common.geometry.neighbours import may_be_near
 from ssf_common.geometry.se3 import transform_points, yaw_translate
 from ssf_flow_node.core.base import FlowResult, PreparedPair, ScanCache, finish, fingerprint, prepare
-from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask
+from ssf_flow_node.core.preprocess import PreprocessConfig, Sample, check_mask, object_top
 from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher, motion_gap
 
 
@@ -683,8 +683,7 @@ def band_ends(band: np.ndarray, sampled: np.ndarray, labels: np.ndarray, along: 
 
 def band_points(points: np.ndarray, height: np.ndarray, config: PreprocessConfig) -> np.ndarray:
     """A whole scan's points above the ground and below object_height (all above the ground where that is 0)."""
-    top = config.object_height if config.object_height > 0 else np.inf
-    return points[(height >= config.ground_height) & (height < max(top, config.ground_height))]
+    return points[(height >= config.ground_height) & (height < object_top(config))]
 
 
 def hidden_ends(points2: np.ndarray, on2: np.ndarray, labels2: np.ndarray, axis: np.ndarray, clusters: np.ndarray,
