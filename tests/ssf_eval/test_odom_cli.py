@@ -80,8 +80,9 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
     result = tmp_path / "odom.json"
     assert main(["eval", "odom", "--scenario", "sparse_50", "--frames", "4", "--masks", "gt", "--methods", "points",
                  "ssf", "ssf+twist", "kiss-icp", "--json", str(result), "--plot", str(tmp_path / "traj.png"),
-                 "--map-plot", str(tmp_path / "maps.png"), "--trail-every", "2",
-                 "-p", "map.confirm:=2"]) == 0  # a 4-scan drive: voxels seen twice are in the map
+                 "--map-plot", str(tmp_path / "maps.png"), "--trail-every", "2", "--poses", str(tmp_path / "poses"),
+                 "-p", "map.confirm:=2",  # a 4-scan drive: voxels seen twice are in the map
+                 "-p", "perception.flow.rigid.end_whole:=false"]) == 0
     table = capsys.readouterr().out
     assert "RPE t RMSE" in table and "kiss-icp" in table
     document = json.loads(result.read_text())
@@ -92,9 +93,21 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
         assert 0.0 <= figures["left_behind_share"] <= figures["trail_share"] <= 1.0
     assert methods["ssf"]["rpe_translation"]["rmse"] < 0.05 and methods["ssf+twist"]["rpe_translation"]["rmse"] < 0.05
     assert document["config"]["odom"]["method"] == "ssf" and (tmp_path / "odom.config.yaml").is_file()
+    assert document["config"]["perception"] == {"flow.rigid.end_whole": False}
     assert (tmp_path / "traj.png").stat().st_size > 0 and (tmp_path / "maps.png").stat().st_size > 0
+    stamps, truth = read_tum(tmp_path / "poses" / "sparse_50_truth_tum.txt")
+    np.testing.assert_allclose(truth[0], np.eye(4), atol=1e-9)
+    for method in methods:
+        method_stamps, poses = read_tum(tmp_path / "poses" / f"sparse_50_{method}_tum.txt")
+        np.testing.assert_array_equal(method_stamps, stamps)
+        end_error = np.linalg.norm(poses[-1, :3, 3] - truth[-1, :3, 3])  # the files hold the trajectories scored
+        distance = document["scenarios"]["sparse_50"]["distance_m"]
+        assert end_error == pytest.approx(methods[method]["endpoint_pct"] * distance / 100.0, abs=1e-6)
     assert main(["eval", "odom", "--scenario", "sparse_50", "--methods", "lidar"]) == 2
     assert "unknown odometry method" in capsys.readouterr().err
+    assert main(["eval", "odom", "--frames", "3", "-p", "perception.flow.rigid.bogus:=1"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "flow.rigid.bogus" in error and len(error.splitlines()) == 1
 
 
 def test_bench_odom(tmp_path, capsys):

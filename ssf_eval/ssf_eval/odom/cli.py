@@ -57,6 +57,9 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--json", type=Path, help="write the results here (and the effective config beside them)")
     evaluate.add_argument("--plot", type=Path, help="PNG: every method's trajectory against the truth")
     evaluate.add_argument("--map-plot", type=Path, help="PNG: the local maps of the last scenario, trails in red")
+    evaluate.add_argument("--poses", type=Path, metavar="DIR",
+                          help="write every trajectory in the TUM format: DIR/SCENARIO_METHOD_tum.txt and "
+                          "DIR/SCENARIO_truth_tum.txt (poses in the first scan's frame), for evo or a closer look")
     add_odom_options(evaluate)
     evaluate.set_defaults(func=run_eval)
 
@@ -76,19 +79,39 @@ def register(groups: CommandGroups) -> None:
 
 
 def add_odom_options(parser: argparse.ArgumentParser) -> None:
-    """--odom-config and -p overrides of the odometry config."""
+    """--odom-config and -p overrides of the odometry and perception configs."""
     parser.add_argument("--odom-config", type=Path, help="odometry config YAML (method, map.*, refine_gates, ...)")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
-                        help="override one odometry config value, e.g. -p map.voxel:=0.5")
+                        help="override one config value: odometry names as they are (-p map.voxel:=0.5), perception "
+                        "names under perception. (-p perception.flow.rigid.end_whole:=false)")
+
+
+PERCEPTION_PREFIX = "perception."
+
+
+def odom_overrides(args: argparse.Namespace) -> dict:
+    """The -p overrides that name odometry settings."""
+    from ssf_common.config import parse_overrides
+
+    return {name: value for name, value in parse_overrides(args.param, "-p").items()
+            if not name.startswith(PERCEPTION_PREFIX)}
+
+
+def perception_overrides(args: argparse.Namespace) -> dict:
+    """The -p overrides under perception., without the prefix."""
+    from ssf_common.config import parse_overrides
+
+    return {name[len(PERCEPTION_PREFIX):]: value for name, value in parse_overrides(args.param, "-p").items()
+            if name.startswith(PERCEPTION_PREFIX)}
 
 
 def odom_config(args: argparse.Namespace):
     """The odometry config from --odom-config and -p overrides."""
-    from ssf_common.config import build, parse_overrides, read_yaml
+    from ssf_common.config import build, read_yaml
     from ssf_odom_node.core.odometry import OdomConfig
 
     file = read_yaml(args.odom_config) if args.odom_config else {}
-    return build(OdomConfig, file, parse_overrides(args.param, "-p"), source=str(args.odom_config or "-p"))
+    return build(OdomConfig, file, odom_overrides(args), source=str(args.odom_config or "-p"))
 
 
 def check_methods(methods: list[str]) -> None:
@@ -100,15 +123,16 @@ def check_methods(methods: list[str]) -> None:
         raise ConfigError(f"unknown odometry method {unknown[0]!r}; choose from {', '.join(KNOWN_METHODS)}")
 
 
-def perception_for(masks: str, seed: int):
+def perception_for(masks: str, seed: int, overrides: dict | None = None):
     """The project's perception on whole scans (ssf_eval.pipeline: flow estimator, segmenter, fusion loop, at their
-    defaults); the loop runs only when the masks come from the segmentation."""
+    whole-scan defaults and `overrides`); the loop runs only when the masks come from the segmentation."""
     from ssf_common.config import build
     from ssf_eval.odom.evaluate import MaskSource, Perception
     from ssf_eval.pipeline import PerceptionConfig, SsfPerception
     from ssf_flow_node.core.estimator import WHOLE_SCAN
 
-    pipeline = SsfPerception(build(PerceptionConfig, {"flow": WHOLE_SCAN}))
+    pipeline = SsfPerception(build(PerceptionConfig, {"flow": WHOLE_SCAN}, overrides or {},
+                                   source="-p perception.*"))
     return Perception(MaskSource(masks), pipeline.loop.estimator, pipeline if masks == "seg" else None, seed)
 
 
@@ -164,7 +188,7 @@ def run_eval(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ssf_common.errors import ConfigError
-    from ssf_common.paths import check_writable
+    from ssf_common.paths import check_writable, check_writable_dir
     from ssf_eval.odom.evaluate import run_sequence
     from ssf_eval.odom.sequence import scenario_of, sim_scans
     from ssf_eval.results import write_result
@@ -181,9 +205,11 @@ def run_eval(args: argparse.Namespace) -> int:
     for path, what in ((args.json, "result file"), (args.plot, "picture"), (args.map_plot, "picture")):
         if path is not None:
             check_writable(path, what)
+    if args.poses is not None:
+        check_writable_dir(args.poses, "poses folder")
     config = odom_config(args)
     scenarios = [scenario_of(name, args.agents) for name in args.scenarios]
-    perception = perception_for(args.masks, args.seed) if {"flow", "ssf", "ssf+twist"} & set(args.methods) else None
+    perception = perception_for(args.masks, args.seed, perception_overrides(args)) if {"flow", "ssf", "ssf+twist"} & set(args.methods) else None
     results = {}
     for scenario in scenarios:
         title = f"{scenario.name}" if args.agents is None else f"{scenario.name}@{args.agents}"
@@ -212,8 +238,15 @@ def run_eval(args: argparse.Namespace) -> int:
                                           "ms_p95": float(np.percentile(result.runs[name].ms, 95))}
                                    for name, s in result.scores.items()}}
                        for title, result in results.items()}}
-        write_result(args.json, payload, {"odom": config, "methods": args.methods, "masks": args.masks,
+        write_result(args.json, payload, {"odom": config, "perception": perception_overrides(args),
+                                          "methods": args.methods, "masks": args.masks,
                                           "scenarios": [s.model_dump(mode="json") for s in scenarios]})
+    if args.poses:
+        from ssf_eval.odom.evaluate import write_trajectories
+
+        for title, result in results.items():
+            written = write_trajectories(result, args.poses, title)
+        print(f"trajectories -> {args.poses}/ ({len(written)} files a scenario)", file=sys.stderr)
     if args.plot:
         from ssf_eval.odom.plot import plot_trajectories
 
@@ -247,7 +280,7 @@ def run_bench(args: argparse.Namespace) -> int:
         check_writable(args.json, "result file")
     config = odom_config(args)
     scenario = scenario_of(args.scenario)
-    perception = perception_for("noisy", args.seed)
+    perception = perception_for("noisy", args.seed, perception_overrides(args))
     scans, inputs, truths = [], [], []
     print(f"computing flow and masks for {args.frames} scans of {args.scenario} ...", file=sys.stderr, flush=True)
     for scan in sim_scans(scenario, args.seed, args.frames, 2.0):

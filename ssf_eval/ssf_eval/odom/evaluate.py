@@ -7,6 +7,7 @@ import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from enum import Enum
+from pathlib import Path
 
 import numpy as np
 
@@ -141,6 +142,22 @@ class SequenceResult:
         stamps = np.asarray(self.stamps_s)
         self.scores = {name: score(truth, np.stack(run.poses), stamps) for name, run in self.runs.items()}
         return self
+
+
+def write_trajectories(result: SequenceResult, folder: Path, title: str) -> list[Path]:
+    """Every method's poses and the truth (first scan's frame) as TUM files: FOLDER/TITLE_METHOD_tum.txt."""
+    from ssf_common.dataset.kitti import write_tum
+
+    folder.mkdir(parents=True, exist_ok=True)
+    truth = np.stack(result.truth)
+    stamps = np.asarray(result.stamps_s)
+    trajectories = {"truth": invert(truth[0]) @ truth, **{name: np.stack(run.poses) for name, run in result.runs.items()}}
+    written = []
+    for name, poses in trajectories.items():
+        path = folder / f"{title}_{name}_tum.txt"
+        write_tum(path, stamps, poses)
+        written.append(path)
+    return written
 
 
 def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perception | None, config: OdomConfig,
