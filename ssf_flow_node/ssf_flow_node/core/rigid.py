@@ -85,6 +85,10 @@ class RigidConfig(Section):
     ego_tolerance: float = Field(0.1, ge=0.0, description="the ego motions aligned with and without the mask's dynamic "
                                  "points agree within this (m, over a 1 m radius); where they do not, the second must "
                                  "lie this much nearer the previous pair's to be taken")
+    ego_max_accel: float = Field(8.0, gt=0.0, description="hardest change of the ego's speed (m/s², braking at about 0.8 "
+                                 "g): where only the alignment without the mask's dynamic points is a change from the "
+                                 "previous pair's motion a vehicle can make in dt, it is taken (traffic moving with the ego "
+                                 "pulls the other towards standing still)")
     end_whole: bool = Field(True, description="where the ground is split, the ends of a flank are found among all the "
                             "points of the whole scans within a sampling spacing of its sampled ones, not among the "
                             "sampled ones alone (a near flank thinned by the range-balanced sample)")
@@ -95,6 +99,9 @@ class RigidConfig(Section):
     end_agreement: float = Field(0.25, ge=0.0, le=1.0, description="the two ends' shifts agree within this share of "
                                  "their mean")
     end_points: int = Field(50, ge=2, description="points a cluster needs in scan t before its ends count")
+    end_slack: float = Field(0.25, ge=0.0, description="the ends' shift may fit the sample this share worse than "
+                             "standing still: a flank sliding along itself fits either way only within the noise of its "
+                             "sampling")
     end_occlusion: float = Field(0.5, gt=0.0, description="an end with points of scan t+1 this much nearer the sensor "
                                  "beside it (within three sampling spacings) is the edge of what hides the cluster, not "
                                  "the cluster's end (m)")
@@ -300,7 +307,7 @@ class RigidFlowEstimator:
         """Ego motion aligned on every point (the robust kernel drops a few movers) and, where the mask calls more than
         `ego_refit` of the points dynamic, aligned without them too. Where the two agree within `ego_tolerance`, the
         second (no movers); where they differ, the first, unless the second lies nearer the previous pair's ego motion
-        (constant velocity) by more than the tolerance. A mask that hides static structure and keeps oncoming cars
+        (constant velocity) by more than the tolerance, or only the second is a change a vehicle can make. A mask that hides static structure and keeps oncoming cars
         drags the second away step by step; traffic moving with the ego pulls the first towards standing still, a
         jump no vehicle makes between two scans."""
         if state.base_ego is None:
@@ -315,10 +322,17 @@ class RigidFlowEstimator:
             masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
             tolerance = self.config.ego_tolerance
             if motion_gap(masked, state.base_ego) <= tolerance or (
-                    state.prior is not None
-                    and motion_gap(masked, state.prior) + tolerance < motion_gap(state.base_ego, state.prior)):
+                    state.prior is not None and self.nearer_prior(masked, state.base_ego, state.prior)):
                 state.ego = masked
         return state.ego
+
+
+    def nearer_prior(self, masked: np.ndarray, base: np.ndarray, prior: np.ndarray) -> bool:
+        """Whether the alignment without the mask's dynamic points lies nearer the previous pair's motion than the one
+        with every point by more than ego_tolerance, or is alone in being a change a vehicle can make in dt."""
+        plausible = self.config.ego_max_accel * self.config.dt ** 2  # m, over the 1 m radius of motion_gap
+        to_masked, to_base = motion_gap(masked, prior), motion_gap(base, prior)
+        return to_masked + self.config.ego_tolerance < to_base or to_masked <= plausible < to_base
 
 
 class Plan:
@@ -585,14 +599,16 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
     ends = np.zeros(count, dtype=bool)  # moved by the shift of their two ends: flanks sliding along themselves
     spare = active & ~moving & (sizes1 >= config.end_points)
-    if config.end_spacings > 0 and spare.any():
-        shift = end_shifts(points1, points2, clusters, spare, config, bands)
+    shifted, fit_ends = np.zeros(count, dtype=bool), None
+    tried = spare | (moving & (sizes1 >= config.end_points))  # a motion may yet fail as the sensor resamples still
+    if config.end_spacings > 0 and tried.any():
+        shift = end_shifts(points1, points2, clusters, tried, config, bands)
         shifted = np.linalg.norm(shift[:, :2], axis=1) > config.min_speed * config.dt
         if shifted.any():  # judged on those clusters' points only
             on = shifted[labels]
             fit_ends = fit_quality(yaw_translate(source[on], np.zeros(np.count_nonzero(on)), shift[labels[on]]),
                                    labels[on], tree, clusters.labels2, allowed[on], config, count, normals2, points2)
-            ends = spare & shifted & no_worse(fit_ends, fit_static, floor, config)
+            ends = spare & shifted & no_worse(fit_ends, fit_static, floor, config, config.end_slack)
             yaw, translation = np.where(ends, 0.0, yaw), np.where(ends[:, None], shift, translation)
             fit_moving = Fit(*(np.where(ends, mine, theirs) for mine, theirs in zip(fit_ends, fit_moving)))
     continued = np.zeros(count, dtype=bool)
@@ -607,9 +623,14 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
                                tree, clusters.labels2, allowed[check], config, count, normals2, points2,
                                floors[allowed][check])
         fit_static = Fit(*(np.where(either, again, first) for again, first in zip(resampled, fit_static)))
+        fitted = moving.copy()
         moving &= explains(fit_moving, fit_static, believed, floor, counted, config)
         continued &= no_worse(fit_moving, fit_static, floor, config)
-        ends &= no_worse(fit_moving, fit_static, floor, config)
+        ends &= no_worse(fit_moving, fit_static, floor, config, config.end_slack)
+        if fit_ends is not None:  # a fitted motion the resampling explains away: its ends may still have moved
+            rescued = fitted & ~moving & shifted & no_worse(fit_ends, fit_static, floor, config, config.end_slack)
+            yaw, translation = np.where(rescued, 0.0, yaw), np.where(rescued[:, None], shift, translation)
+            ends |= rescued
     moving |= ends
     streak, proven = np.where(moving, 0, -1), moving.astype(np.int64)  # a first sighting, or still
     if carry is not None:  # a motion seen before: one more pair that proved it, or one more carried
@@ -738,11 +759,12 @@ def continue_carried(source: np.ndarray, labels: np.ndarray, carry: CarriedMotio
             Fit(*(np.where(kept, mine, theirs) for mine, theirs in zip(chosen, fit_moving))))
 
 
-def no_worse(fit_moving: Fit, fit_static: Fit, floor: np.ndarray, config: RigidConfig) -> np.ndarray:
+def no_worse(fit_moving: Fit, fit_static: Fit, floor: np.ndarray, config: RigidConfig, slack: float = 0.0) -> np.ndarray:
     """Per cluster, whether its motion lays it on the surfaces of scan t+1 (within the noise floor) and near its
-    points no worse than standing still, and explains all but max_unexplained of it."""
-    return ((fit_moving.plane <= np.maximum(fit_static.plane, floor)) & (fit_moving.residual <= fit_static.residual)
-            & (fit_moving.unexplained <= config.max_unexplained))
+    points no worse than standing still (by more than the `slack` share), and explains all but max_unexplained of it."""
+    allowed = 1.0 + slack
+    return ((fit_moving.plane <= allowed * np.maximum(fit_static.plane, floor))
+            & (fit_moving.residual <= allowed * fit_static.residual) & (fit_moving.unexplained <= config.max_unexplained))
 
 
 def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.ndarray, counted: np.ndarray,
