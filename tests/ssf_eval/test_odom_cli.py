@@ -117,3 +117,37 @@ def test_bench_odom(tmp_path, capsys):
     figures = json.loads(out.read_text())
     assert set(figures["methods"]) == {"ssf", "kiss-icp"} and figures["peak_rss_mb"] > 0
     assert figures["methods"]["ssf"]["ms_median"] > 0
+
+
+def test_eval_odom_scores_the_poses_odom_run_gives_on_the_same_scans(tmp_path):
+    """`ssf eval odom` runs the graph's perception: its `ssf` trajectory is the one `ssf odom run` writes for the very
+    same scans (the maskless flow of the 'flow' row asked for beside it must not touch the loop's stream)."""
+    from ssf_eval.odom.sequence import scenario_of, sim_scans
+
+    frames = 8
+    folder = tmp_path / "scans"
+    folder.mkdir()
+    scans = list(sim_scans(scenario_of("urban_200"), 4, frames, 2.0))
+    for scan in scans:
+        np.save(folder / f"{scan.index:06d}.npy", scan.points)
+    np.save(folder / f"{frames:06d}.npy", scans[-1].next_points)
+    assert main(["eval", "odom", "--scenario", "urban_200", "--seed", "4", "--frames", str(frames), "--methods", "flow",
+                 "ssf", "--poses", str(tmp_path / "poses")]) == 0
+    assert main(["odom", "run", str(folder), "--out", str(tmp_path / "run")]) == 0
+    _, evaluated = read_tum(tmp_path / "poses" / "urban_200_ssf_tum.txt")
+    _, run = read_tum(tmp_path / "run" / "poses_tum.txt")
+    np.testing.assert_allclose(evaluated, run[:frames], atol=1e-6)
+
+
+def test_the_maskless_flow_beside_the_loop_leaves_the_loops_estimator_as_the_graph_leaves_it():
+    """What a pair's last estimate moved is what the stream carries to the next pair: in the graph that is the loop's
+    own answer, so the 'flow' row's maskless estimate must come from another estimator."""
+    from ssf_eval.odom.cli import perception_for
+    from ssf_eval.odom.sequence import scenario_of, sim_scans
+
+    perception = perception_for("seg", 0, plain=True)
+    for scan in sim_scans(scenario_of("urban_200"), 4, 2, 2.0):
+        perceived = perception(scan)
+        assert perceived.flow_plain is not None and perceived.flow_plain.shape == perceived.flow.shape
+        np.testing.assert_array_equal(perception.estimator.state.result.flow, perceived.flow)
+    assert perception_for("seg", 0, plain=False)(scan).flow_plain is None

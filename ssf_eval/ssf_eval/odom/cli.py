@@ -123,17 +123,23 @@ def check_methods(methods: list[str]) -> None:
         raise ConfigError(f"unknown odometry method {unknown[0]!r}; choose from {', '.join(KNOWN_METHODS)}")
 
 
-def perception_for(masks: str, seed: int, overrides: dict | None = None):
+def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: bool = True):
     """The project's perception on whole scans (ssf_eval.pipeline: flow estimator, segmenter, fusion loop, at their
-    whole-scan defaults and `overrides`); the loop runs only when the masks come from the segmentation."""
+    whole-scan defaults and `overrides`); the loop runs only when the masks come from the segmentation. `plain`: the
+    flow without a mask is wanted too (the 'flow' method)."""
     from ssf_common.config import build
     from ssf_eval.odom.evaluate import MaskSource, Perception
     from ssf_eval.pipeline import PerceptionConfig, SsfPerception
-    from ssf_flow_node.core.estimator import WHOLE_SCAN
+    from ssf_flow_node.core.estimator import WHOLE_SCAN, make_estimator
 
-    pipeline = SsfPerception(build(PerceptionConfig, {"flow": WHOLE_SCAN}, overrides or {},
-                                   source="-p perception.*"))
-    return Perception(MaskSource(masks), pipeline.loop.estimator, pipeline if masks == "seg" else None, seed)
+    config = build(PerceptionConfig, {"flow": WHOLE_SCAN}, overrides or {}, source="-p perception.*")
+    pipeline = SsfPerception(config)
+    segmented = masks == "seg"
+    estimator = pipeline.loop.estimator
+    maskless = None
+    if plain:  # the loop's estimator answers the graph's questions only; the stand-in masks' one asks both
+        maskless = make_estimator(config.flow.estimator, config.flow) if segmented else estimator
+    return Perception(MaskSource(masks), estimator, pipeline if segmented else None, seed, maskless)
 
 
 def format_table(results: dict) -> str:
@@ -209,7 +215,8 @@ def run_eval(args: argparse.Namespace) -> int:
         check_writable_dir(args.poses, "poses folder")
     config = odom_config(args)
     scenarios = [scenario_of(name, args.agents) for name in args.scenarios]
-    perception = perception_for(args.masks, args.seed, perception_overrides(args)) if {"flow", "ssf", "ssf+twist"} & set(args.methods) else None
+    perception = (perception_for(args.masks, args.seed, perception_overrides(args), plain="flow" in args.methods)
+                  if {"flow", "ssf", "ssf+twist"} & set(args.methods) else None)
     results = {}
     for scenario in scenarios:
         title = f"{scenario.name}" if args.agents is None else f"{scenario.name}@{args.agents}"

@@ -38,19 +38,23 @@ class MaskSource(str, Enum):
 class Perceived:
     """What perception hands the odometry for one scan."""
 
-    flow_plain: np.ndarray  # flow without any mask (the 'flow' variant: no segmentation)
+    flow_plain: np.ndarray | None  # flow without any mask (the 'flow' variant: no segmentation); None when not asked
     flow: np.ndarray  # flow with the static mask (ssf)
     dynamic_prob: np.ndarray  # (N,) probability that each point moves
     ms: float
 
 
 class Perception:
-    """Scene flow from the project's estimator on whole scans and the static mask from the chosen source."""
+    """Scene flow from the project's estimator on whole scans and the static mask from the chosen source.
 
-    def __init__(self, masks: MaskSource, estimator, pipeline=None, seed: int = 0) -> None:
+    With masks from the segmentation, the flow without a mask comes from an estimator of its own (`plain`), so that
+    the loop's estimator carries from pair to pair exactly what the graph's flow node does."""
+
+    def __init__(self, masks: MaskSource, estimator, pipeline=None, seed: int = 0, plain=None) -> None:
         self.masks = MaskSource(masks)
         self.estimator = estimator
         self.pipeline = pipeline  # ssf_eval.pipeline.SsfPerception, for masks from the segmentation
+        self.plain = plain  # estimator of the maskless flow; None: the 'flow' variant is not asked for
         self.rng = np.random.default_rng(seed)
 
     def reset(self) -> None:
@@ -61,17 +65,16 @@ class Perception:
     def __call__(self, scan: SimScan) -> Perceived:
         """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
         started = time.perf_counter()
+        plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points).flow
         if self.masks is MaskSource.SEG:
             result = self.pipeline.perceive(scan.points, scan.next_points, follows=True).fusion  # consecutive scans
-            plain = self.estimator.estimate(scan.points, scan.next_points).flow
             return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3)
         if self.masks is MaskSource.GT:
             mask = scan.dynamic.astype(np.float32)
         else:
             pair = make_pair(scan.points, scan.next_points, np.zeros_like(scan.points), scan.dynamic, scan.instance)
             mask = noisy_mask(pair, self.rng)
-        plain = self.estimator.estimate(scan.points, scan.next_points).flow
-        masked = self.estimator.estimate(scan.points, scan.next_points, mask).flow
+        masked = self.estimator.estimate(scan.points, scan.next_points, mask).flow  # last: the stream carries its motions
         return Perceived(plain, masked, mask, (time.perf_counter() - started) * 1e3)
 
 
