@@ -160,3 +160,4 @@ def test_the_alignment_without_movers_wins_where_only_it_is_a_change_a_vehicle_c
     assert not estimator.nearer_prior(forward(0.090), forward(0.030), prior)  # 5.7 cm: a hard brake, and it agrees
     faster = make_estimator("rigid", FlowConfig(rigid=RigidConfig(dt=0.05)))  # at 20 Hz a vehicle changes 4 times less
     assert not faster.nearer_prior(forward(0.060), base, prior)
+    assert not estimator.nearer_prior(forward(0.090), base, prior, dynamic_share=0.6)  # a mask hiding most of the scan

@@ -89,6 +89,10 @@ class RigidConfig(Section):
                                  "g): where only the alignment without the mask's dynamic points is a change from the "
                                  "previous pair's motion a vehicle can make in dt, it is taken (traffic moving with the ego "
                                  "pulls the other towards standing still)")
+    ego_mask_share: float = Field(0.5, ge=0.0, le=1.0, description="the alignment without the mask's dynamic points "
+                                  "is taken for being the only plausible change only while the mask calls at most this "
+                                  "share of the points dynamic (a mask that hides the static structure drags an alignment "
+                                  "on oncoming traffic along step by step, each step plausible)")
     end_whole: bool = Field(True, description="where the ground is split, the ends of a flank are found among all the "
                             "points of the whole scans within a sampling spacing of its sampled ones, not among the "
                             "sampled ones alone (a near flank thinned by the range-balanced sample)")
@@ -322,17 +326,19 @@ class RigidFlowEstimator:
             masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
             tolerance = self.config.ego_tolerance
             if motion_gap(masked, state.base_ego) <= tolerance or (
-                    state.prior is not None and self.nearer_prior(masked, state.base_ego, state.prior)):
+                    state.prior is not None
+                    and self.nearer_prior(masked, state.base_ego, state.prior, float(np.mean(dynamic)))):
                 state.ego = masked
         return state.ego
 
-
-    def nearer_prior(self, masked: np.ndarray, base: np.ndarray, prior: np.ndarray) -> bool:
+    def nearer_prior(self, masked: np.ndarray, base: np.ndarray, prior: np.ndarray, dynamic_share: float = 0.0) -> bool:
         """Whether the alignment without the mask's dynamic points lies nearer the previous pair's motion than the one
-        with every point by more than ego_tolerance, or is alone in being a change a vehicle can make in dt."""
+        with every point by more than ego_tolerance, or is alone in being a change a vehicle can make in dt while the
+        mask leaves most of the points to it (`dynamic_share`: the share it calls dynamic)."""
         plausible = self.config.ego_max_accel * self.config.dt ** 2  # m, over the 1 m radius of motion_gap
         to_masked, to_base = motion_gap(masked, prior), motion_gap(base, prior)
-        return to_masked + self.config.ego_tolerance < to_base or to_masked <= plausible < to_base
+        alone_plausible = to_masked <= plausible < to_base and dynamic_share <= self.config.ego_mask_share
+        return to_masked + self.config.ego_tolerance < to_base or alone_plausible
 
 
 class Plan:
