@@ -89,20 +89,22 @@ def add_odom_options(parser: argparse.ArgumentParser) -> None:
 PERCEPTION_PREFIX = "perception."
 
 
-def odom_overrides(args: argparse.Namespace) -> dict:
-    """The -p overrides that name odometry settings."""
+def split_overrides(args: argparse.Namespace) -> tuple[dict, dict]:
+    """The -p overrides as (odometry names, perception names without their `perception.` prefix)."""
     from ssf_common.config import parse_overrides
 
-    return {name: value for name, value in parse_overrides(args.param, "-p").items()
-            if not name.startswith(PERCEPTION_PREFIX)}
+    odometry, perception = {}, {}
+    for name, value in parse_overrides(args.param, "-p").items():
+        if name.startswith(PERCEPTION_PREFIX):
+            perception[name[len(PERCEPTION_PREFIX):]] = value
+        else:
+            odometry[name] = value
+    return odometry, perception
 
 
 def perception_overrides(args: argparse.Namespace) -> dict:
     """The -p overrides under perception., without the prefix."""
-    from ssf_common.config import parse_overrides
-
-    return {name[len(PERCEPTION_PREFIX):]: value for name, value in parse_overrides(args.param, "-p").items()
-            if name.startswith(PERCEPTION_PREFIX)}
+    return split_overrides(args)[1]
 
 
 def odom_config(args: argparse.Namespace):
@@ -111,7 +113,7 @@ def odom_config(args: argparse.Namespace):
     from ssf_odom_node.core.odometry import OdomConfig
 
     file = read_yaml(args.odom_config) if args.odom_config else {}
-    return build(OdomConfig, file, odom_overrides(args), source=str(args.odom_config or "-p"))
+    return build(OdomConfig, file, split_overrides(args)[0], source=str(args.odom_config or "-p"))
 
 
 def check_methods(methods: list[str]) -> None:

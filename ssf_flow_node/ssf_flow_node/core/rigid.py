@@ -311,9 +311,9 @@ class RigidFlowEstimator:
         """Ego motion aligned on every point (the robust kernel drops a few movers) and, where the mask calls more than
         `ego_refit` of the points dynamic, aligned without them too. Where the two agree within `ego_tolerance`, the
         second (no movers); where they differ, the first, unless the second lies nearer the previous pair's ego motion
-        (constant velocity) by more than the tolerance, or only the second is a change a vehicle can make. A mask that hides static structure and keeps oncoming cars
-        drags the second away step by step; traffic moving with the ego pulls the first towards standing still, a
-        jump no vehicle makes between two scans."""
+        (constant velocity) by more than the tolerance, or only the second is a change a vehicle can make. A mask
+        that hides static structure and keeps oncoming cars drags the second away step by step; traffic moving with
+        the ego pulls the first towards standing still, a jump no vehicle makes between two scans."""
         if state.base_ego is None:
             state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior)
         if dynamic is None:  # a question without a mask leaves the stream's motion (the next pair's prior) as it was
