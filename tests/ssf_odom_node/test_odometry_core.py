@@ -329,6 +329,32 @@ def test_where_the_flow_and_the_prior_agree_across_a_gap_the_flow_search_is_skip
     assert searched[-1] == 5 and len(searched) == 2, searched  # one search per gap: the prior's five headings
 
 
+@pytest.mark.parametrize("flow_excess, searched", [(0.04, False), (0.10, True)])
+def test_a_flow_motion_no_vehicle_makes_is_checked_from_constant_velocity(monkeypatch, flow_excess, searched):
+    """Driving 1 m a scan, a flow that says 4 cm more is a change of speed a car makes in 0.1 s (4 m/s²) and is only
+    refined; 10 cm more (10 m/s², past braking at 0.8 g) is checked by a search from constant velocity as well, and
+    the pose stays right either way on a static street."""
+    from ssf_odom_node.core import odometry as core
+
+    odometry = make_odometry("ssf", OdomConfig(ssf_range=100.0))
+    world, moving = street(5, moved=False)
+    world = world[~moving]
+    poses = [make_pose(1.0 * index) for index in range(5)]
+    scan = lambda index: transform_points(invert(poses[index]), world)
+    for index in range(3):
+        points = scan(index)
+        odometry.step(OdomInput(index * 100_000_000, points, scan(index + 1) - points, np.zeros(len(points), np.float32)))
+    gates: list[tuple[float, ...]] = []
+    refine = core.point_to_plane
+    monkeypatch.setattr(core, "point_to_plane", lambda *args: gates.append(args[4]) or refine(*args))
+    points = scan(3)
+    overshot = transform_points(invert(make_pose(1.0 + flow_excess)), points) - points  # flow of a 1 m + excess step
+    odometry.step(OdomInput(300_000_000, points, overshot, np.zeros(len(points), np.float32)))
+    step = odometry.step(OdomInput(400_000_000, scan(4)))  # predicted by the overshooting flow
+    assert (odometry.config.search_gates in gates) == searched, gates
+    assert pose_error(step.pose, poses[4])[0] < 0.02
+
+
 def test_a_motion_prior_must_be_a_finite_transform():
     odometry = make_odometry("points")
     points = np.random.default_rng(0).uniform(-20, 20, (500, 3))

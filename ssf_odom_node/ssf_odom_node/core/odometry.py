@@ -57,9 +57,12 @@ class OdomConfig(Section):
     command_yaw_rate: float = Field(10.0, gt=0.0, description="across a gap with a motion prior (the commands sent, "
                                     "wheel odometry), the prior is searched in heading up to this yaw rate (deg/s) "
                                     "over the gap and competes with the flow's search, instead of constant velocity")
-    prior_gate: tuple[float, float] = Field((0.2, 0.02), description="a flow motion farther than this (m, rad) from "
+    prior_gate: tuple[float, float] = Field((0.08, 0.02), description="a flow motion farther than this (m, rad) from "
                                             "the constant-velocity prediction is checked: a search from that "
-                                            "prediction runs too, and the map keeps whichever fits more points")
+                                            "prediction runs too, and the map keeps whichever fits more points (0.08 m: "
+                                            "8 m/s², braking at about 0.8 g, over a 0.1 s scan period; a flow dragged "
+                                            "along by traffic creeps away from constant velocity by less than a "
+                                            "looser gate)")
     measured_gate: tuple[float, float] = Field((0.05, 0.01), description="with the vehicle's measured motion (wheel "
                                                "speed, gyro), a flow motion farther than this (m, rad) from it "
                                                "gives way to it: traffic that moves with the ego can fool the flow, "
