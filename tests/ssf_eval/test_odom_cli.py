@@ -88,6 +88,9 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
     document = json.loads(result.read_text())
     methods = document["scenarios"]["sparse_50"]["methods"]
     assert set(methods) == {"points", "ssf", "ssf+twist", "kiss-icp"}
+    scenario = document["scenarios"]["sparse_50"]
+    assert 0.0 <= scenario["static_world_left_behind_share"] <= scenario["static_world_trail_share"] <= 1.0
+    assert "the static world itself" in table
     for figures in methods.values():
         assert {"rmse", "sse", "std"} <= set(figures["rpe_translation"]) and figures["ate"]["rmse"] >= 0
         assert 0.0 <= figures["left_behind_share"] <= figures["trail_share"] <= 1.0

@@ -87,3 +87,26 @@ def test_left_behind_counts_only_paths_where_no_agent_stands_now():
     np.testing.assert_array_equal(standing_now(points, now), [False, True, True, False])
     on, left = left_behind(points, paths, Obstacles.empty())  # nobody there now: every path voxel is left behind
     np.testing.assert_array_equal(left, on)
+
+
+def test_the_static_world_floor_keeps_a_queued_car_on_the_paths_but_never_left_behind():
+    """The simulator's static points within reach, sampled like a map: a car standing in a queue is static (on its
+    path, not left behind), a moving car's points and points beyond reach are not sampled at all."""
+    from ssf_eval.odom.evaluate import MethodRun, sample_trails, static_world
+    from ssf_eval.odom.sequence import SimScan
+
+    queued = Obstacles(0, "world", ids=[2], kinds=[1], centres=[[10.0, 0.0, 0.8]], sizes=[[4.0, 2.0, 1.6]],
+                       yaws=[0.0], velocities=[[0.0, 0.0, 0.0]])
+    points = np.array([[10.5, 0.3, 1.2],  # the queued car
+                       [12.0, 8.0, 1.0],  # a wall nobody walked into
+                       [20.0, 0.0, 1.0],  # a moving car
+                       [50.0, 0.0, 1.0]], np.float32)  # a wall beyond reach
+    scan = SimScan(0, 0, points, points, np.array([False, False, True, False]), np.zeros(4, np.int32),
+                   make_pose(1.0), queued)
+    kept = static_world(scan, 35.0)
+    np.testing.assert_array_equal(kept, points[:2])
+    paths = SweptPaths()
+    paths.add(queued)
+    floor = MethodRun("static world")
+    sample_trails(floor, kept, np.eye(4), paths, 0.8, queued)
+    assert (floor.map_voxels, floor.trail_voxels, floor.left_voxels) == (2, 1, 0)

@@ -232,11 +232,18 @@ def run_eval(args: argparse.Namespace) -> int:
           "(RPE between consecutive scans: translation m, rotation deg; ATE m; trails: share of map voxels on agents' "
           "paths; left: of those, where no agent stands at that moment)")
     print(format_table(results))
+    for title, result in results.items():
+        floor = result.static_world
+        print(f"{title}: the static world itself (the simulator's static points within ssf_range, same voxels) has "
+              f"{100 * floor.trail_share:.2f} % on agents' paths, {100 * floor.left_share:.2f} % left behind: the "
+              "floor a perfect static map scores (agents standing still are static)")
     if args.json:
         payload = {"seed": args.seed, "frames": args.frames, "warmup_s": args.warmup, "masks": args.masks,
                    "scenarios": {title: {
                        "distance_m": next(iter(result.scores.values())).distance,
                        "perception_ms_median": float(np.median(result.perception_ms)) if result.perception_ms else None,
+                       "static_world_trail_share": result.static_world.trail_share,
+                       "static_world_left_behind_share": result.static_world.left_share,
                        "methods": {name: {"rpe_translation": s.rpe_translation._asdict(),
                                           "rpe_rotation_deg": s.rpe_rotation._asdict(), "ate": s.ate._asdict(),
                                           "drift": s.drift._asdict(), "endpoint_pct": s.endpoint_pct,

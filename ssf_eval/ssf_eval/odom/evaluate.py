@@ -135,6 +135,7 @@ class SequenceResult:
     truth: list[np.ndarray] = field(default_factory=list)
     stamps_s: list[float] = field(default_factory=list)
     runs: dict[str, MethodRun] = field(default_factory=dict)
+    static_world: MethodRun = field(default_factory=lambda: MethodRun("static world"))  # the trails' floor
     perception_ms: list[float] = field(default_factory=list)
     scores: dict[str, OdomScores] = field(default_factory=dict)
 
@@ -198,12 +199,22 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
             result.runs[KISS_ICP].poses.append(kiss.step(scan.points))
             result.runs[KISS_ICP].ms.append((time.perf_counter() - started) * 1e3)
         if count % trail_every == 0:
+            sample_trails(result.static_world, static_world(scan, config.ssf_range), scan.pose, paths, map_voxel,
+                          scan.agents)
             for name, run in result.runs.items():
                 odom_map = kiss.map_points() if name == KISS_ICP else odometries[name].map.points
                 sample_trails(run, odom_map, scan.pose @ invert(run.poses[-1]), paths, map_voxel, scan.agents)
         if progress is not None:
             progress(count)
     return result.finish()
+
+
+def static_world(scan: SimScan, reach: float) -> np.ndarray:
+    """The scan's points the simulator knows to be static, within `reach` (m) of the sensor: what a perfect static map
+    holds there; its share on agents' paths is the floor of the trail figures (agents standing still are static)."""
+    points = np.asarray(scan.points, dtype=np.float64)
+    keep = ~np.asarray(scan.dynamic, bool) & (np.linalg.norm(points[:, :2], axis=1) <= reach)
+    return points[keep]
 
 
 def sample_trails(run: MethodRun, odom_map: np.ndarray, world_from_odom: np.ndarray, paths: SweptPaths,
