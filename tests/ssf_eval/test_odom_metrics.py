@@ -108,5 +108,27 @@ def test_the_static_world_floor_keeps_a_queued_car_on_the_paths_but_never_left_b
     paths = SweptPaths()
     paths.add(queued)
     floor = MethodRun("static world")
-    sample_trails(floor, kept, np.eye(4), paths, 0.8, queued)
+    sample_trails(floor, kept, paths, queued)
     assert (floor.map_voxels, floor.trail_voxels, floor.left_voxels) == (2, 1, 0)
+
+
+def test_a_map_voxel_stays_where_the_sensor_saw_it_when_the_odometry_drifts_later():
+    """Each map point is put into the world by the odometry's error when it first appeared: a road point 50 m away
+    mapped while the pose was exact stays on the road after the estimate pitches by 0.6 deg (placing the whole map by
+    the latest pose lifts it 0.5 m into an agent's path); a point first held after the drift takes the new error."""
+    from ssf_eval.odom.trails import MapPlacement, world_from_odometry
+
+    road = np.array([[50.0, 0.0, 0.0]], np.float32)
+    placement = MapPlacement()
+    truth = np.eye(4)
+    np.testing.assert_allclose(placement.place(road, world_from_odometry(truth, truth)), road, atol=1e-6)
+    pitched = np.eye(4)
+    angle = np.radians(0.6)
+    pitched[:3, :3] = [[np.cos(angle), 0.0, np.sin(angle)], [0.0, 1.0, 0.0], [-np.sin(angle), 0.0, np.cos(angle)]]
+    drifted = world_from_odometry(truth, pitched)
+    assert abs((drifted[:3, :3] @ road[0])[2]) > 0.5  # the latest pose would lift the road point by half a metre
+    later = np.array([[20.0, 5.0, 0.0]], np.float32)
+    placed = placement.place(np.concatenate([road, later]), drifted)
+    np.testing.assert_allclose(placed[0], road[0], atol=1e-6)
+    np.testing.assert_allclose(placed[1], drifted[:3, :3] @ later[0], atol=1e-6)
+    assert len(placement.place(np.zeros((0, 3), np.float32), drifted)) == 0

@@ -18,7 +18,7 @@ from ssf_common.geometry.se3 import invert, transform_points
 from ssf_eval.odom.metrics import OdomScores, score
 from ssf_eval.odom.sequence import SimScan
 from ssf_common.records import Obstacles
-from ssf_eval.odom.trails import SweptPaths, left_behind
+from ssf_eval.odom.trails import MapPlacement, SweptPaths, left_behind, world_from_odometry
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 KISS_ICP = "kiss-icp"
@@ -172,6 +172,7 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
     kiss = KissIcpBaseline() if KISS_ICP in methods else None
     result = SequenceResult(runs={name: MethodRun(name) for name in methods})
     paths = SweptPaths()
+    placements = {name: MapPlacement() for name in methods}
     if perception is not None:
         perception.reset()
     for count, scan in enumerate(scans, 1):
@@ -199,11 +200,13 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
             result.runs[KISS_ICP].poses.append(kiss.step(scan.points))
             result.runs[KISS_ICP].ms.append((time.perf_counter() - started) * 1e3)
         if count % trail_every == 0:
-            sample_trails(result.static_world, static_world(scan, config.ssf_range), scan.pose, paths, map_voxel,
-                          scan.agents)
+            world = static_world(scan, config.ssf_range)
+            sample_trails(result.static_world, transform_points(scan.pose, world[voxel_indices(world, map_voxel)]),
+                          paths, scan.agents)
             for name, run in result.runs.items():
-                odom_map = kiss.map_points() if name == KISS_ICP else odometries[name].map.points
-                sample_trails(run, odom_map, scan.pose @ invert(run.poses[-1]), paths, map_voxel, scan.agents)
+                odom_map = np.asarray(kiss.map_points() if name == KISS_ICP else odometries[name].map.points)
+                placed = placements[name].place(odom_map, world_from_odometry(scan.pose, run.poses[-1]))
+                sample_trails(run, placed[voxel_indices(odom_map, map_voxel)], paths, scan.agents)
         if progress is not None:
             progress(count)
     return result.finish()
@@ -217,15 +220,12 @@ def static_world(scan: SimScan, reach: float) -> np.ndarray:
     return points[keep]
 
 
-def sample_trails(run: MethodRun, odom_map: np.ndarray, world_from_odom: np.ndarray, paths: SweptPaths,
-                  voxel: float, agents: Obstacles | None = None) -> None:
-    """Count a map's voxels, those on agents' paths and those of them where none of `agents` (this moment) stands
-    (the map put into the world at the current true pose)."""
-    points = np.asarray(odom_map, dtype=np.float64)
-    if len(points) == 0:
+def sample_trails(run: MethodRun, world: np.ndarray, paths: SweptPaths, agents: Obstacles | None = None) -> None:
+    """Count a map's voxels (one world point each), those on agents' paths and those of them where none of `agents`
+    (this moment) stands."""
+    world = np.asarray(world, dtype=np.float64)
+    if len(world) == 0:
         return
-    points = points[voxel_indices(points, voxel)]
-    world = transform_points(world_from_odom, points)
     trails, left = left_behind(world, paths, agents if agents is not None else Obstacles.empty())
     run.trail_voxels += int(trails.sum())
     run.left_voxels += int(left.sum())
