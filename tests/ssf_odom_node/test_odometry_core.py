@@ -10,8 +10,8 @@ from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, transform_points
 from ssf_common.scans import read_scan
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, make_odometry
-from ssf_odom_node.core.registration import (PlaneTarget, estimate_normals, flow_transform, point_to_plane,
-                                              steep_support)
+from ssf_odom_node.core.registration import (PlaneTarget, estimate_normals, flow_transform, normals_among,
+                                              point_to_plane, steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap
 
 CONVOY_STEP = 1.0  # m per scan, along x (world)
@@ -410,6 +410,27 @@ def test_normals_of_a_plane_and_a_wall():
     wall = np.c_[rng.uniform(-5, 5, 500), np.full(500, 20.0), rng.uniform(0, 3, 500)]
     normals = estimate_normals(np.vstack([plane, wall]), 8)
     assert np.abs(normals[:500, 2]).min() > 0.99 and np.abs(normals[500:, 1]).min() > 0.99
+
+
+def test_a_far_ring_takes_its_ground_normal_from_the_map_too():
+    """One scan's voxelised ground ring 40 m out is nearly a line, so its own neighbours tilt the normal with the range
+    noise (median ~8 deg here); among the rings earlier scans left in the map it is within 2.5 deg of vertical."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(0)
+
+    def ring(radius: float, count: int = 40) -> np.ndarray:
+        angle = np.arange(count) * 0.8 / radius  # one point per 0.8 m, as the odometry's voxels leave it
+        return np.c_[radius * np.cos(angle), radius * np.sin(angle), 0.03 * rng.standard_normal(count)]
+
+    scan = ring(40.0)
+    earlier = np.concatenate([ring(radius) for radius in (38.6, 39.3, 40.7, 41.4)])
+    tilt = lambda normals: np.degrees(np.arccos(np.abs(normals[:, 2])))  # noqa: E731
+    alone = tilt(estimate_normals(scan, 8, np.arange(10, 30)))
+    among = tilt(normals_among(scan[10:30], [(earlier, cKDTree(earlier)), (scan, cKDTree(scan))], 8))
+    assert np.median(alone) > 5.0
+    assert among.max() < 2.5
+    assert len(normals_among(np.zeros((0, 3)), [(scan, cKDTree(scan))])) == 0
 
 
 @pytest.mark.parametrize("name", ["vlp16_1673400472138016708.pcd", "vlp32_1713492677464078412.pcd"])

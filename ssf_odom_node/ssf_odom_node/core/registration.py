@@ -58,6 +58,30 @@ def estimate_normals(points: np.ndarray, neighbours: int = 8, at: np.ndarray | N
     return vectors[:, :, 0]
 
 
+def normals_among(query: np.ndarray, clouds: list[tuple[np.ndarray, cKDTree]], neighbours: int = 8) -> np.ndarray:
+    """Unit normals at the query points from their k nearest neighbours among several point sets (each with its
+    KD-tree), e.g. the map and the scan being mapped: a ground voxel first seen far away gets its plane from the rings
+    of earlier scans too, not only from its own scan's ring, nearly a line there."""
+    query = np.asarray(query, dtype=np.float64).reshape(-1, 3)
+    clouds = [(np.asarray(points, dtype=np.float64), tree) for points, tree in clouds if len(points)]
+    total = sum(len(points) for points, _ in clouds)
+    if len(query) == 0 or total < 3:
+        return np.tile([0.0, 0.0, 1.0], (len(query), 1))
+    k = min(neighbours, total)
+    distances, found = [], []
+    for points, tree in clouds:
+        distance, index = tree.query(query, k=min(k, len(points)))
+        distance, index = distance.reshape(len(query), -1), index.reshape(len(query), -1)
+        distances.append(distance)
+        found.append(points[index])
+    distance, near = np.concatenate(distances, axis=1), np.concatenate(found, axis=1)  # (Q, m, 3), m >= k
+    nearest = np.argpartition(distance, k - 1, axis=1)[:, :k]
+    near = np.take_along_axis(near, nearest[:, :, None], axis=1)
+    centred = near - near.mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
+    return vectors[:, :, 0]
+
+
 def flow_transform(points: np.ndarray, flow: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
     """The rigid motion (4x4, scan t -> scan t+1) that best explains the weighted points' flow: weighted Kabsch."""
     points = np.asarray(points, dtype=np.float64)
