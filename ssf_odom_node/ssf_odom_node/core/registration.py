@@ -52,7 +52,11 @@ def estimate_normals(points: np.ndarray, neighbours: int = 8, at: np.ndarray | N
     if len(points) < 3:
         return np.tile([0.0, 0.0, 1.0], (len(query), 1))
     found = knn(points, query, min(neighbours, len(points)))
-    near = points[found.index]  # (Q, k, 3); knn never misses within the set itself
+    return plane_normals(points[found.index])  # (Q, k, 3); knn never misses within the set itself
+
+
+def plane_normals(near: np.ndarray) -> np.ndarray:
+    """(Q, 3) unit normals of Q neighbourhoods (Q, k, 3): each one's least-variance direction."""
     centred = near - near.mean(axis=1, keepdims=True)
     _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
     return vectors[:, :, 0]
@@ -76,10 +80,7 @@ def normals_among(query: np.ndarray, clouds: list[tuple[np.ndarray, cKDTree]], n
         found.append(points[index])
     distance, near = np.concatenate(distances, axis=1), np.concatenate(found, axis=1)  # (Q, m, 3), m >= k
     nearest = np.argpartition(distance, k - 1, axis=1)[:, :k]
-    near = np.take_along_axis(near, nearest[:, :, None], axis=1)
-    centred = near - near.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.einsum("nki,nkj->nij", centred, centred))
-    return vectors[:, :, 0]
+    return plane_normals(np.take_along_axis(near, nearest[:, :, None], axis=1))
 
 
 def flow_transform(points: np.ndarray, flow: np.ndarray, weights: np.ndarray | None) -> np.ndarray:
