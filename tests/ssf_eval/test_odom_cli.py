@@ -90,7 +90,7 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
     assert set(methods) == {"points", "ssf", "ssf+twist", "kiss-icp"}
     scenario = document["scenarios"]["sparse_50"]
     assert 0.0 <= scenario["static_world_left_behind_share"] <= scenario["static_world_trail_share"] <= 1.0
-    assert "the static world itself" in table
+    assert "the static world itself" in table and "where the last pose is off" in table
     for figures in methods.values():
         assert {"rmse", "sse", "std"} <= set(figures["rpe_translation"]) and figures["ate"]["rmse"] >= 0
         assert 0.0 <= figures["left_behind_share"] <= figures["trail_share"] <= 1.0
@@ -106,6 +106,8 @@ def test_eval_odom_end_to_end(tmp_path, capsys):
         end_error = np.linalg.norm(poses[-1, :3, 3] - truth[-1, :3, 3])  # the files hold the trajectories scored
         distance = document["scenarios"]["sparse_50"]["distance_m"]
         assert end_error == pytest.approx(methods[method]["endpoint_pct"] * distance / 100.0, abs=1e-6)
+        split = methods[method]["end_error"]  # the same end error, along the ground and in height
+        assert np.hypot(split["horizontal_m"], split["height_m"]) == pytest.approx(end_error, abs=1e-6)
     assert main(["eval", "odom", "--scenario", "sparse_50", "--methods", "lidar"]) == 2
     assert "unknown odometry method" in capsys.readouterr().err
     assert main(["eval", "odom", "--frames", "3", "-p", "perception.flow.rigid.bogus:=1"]) == 2
@@ -154,3 +156,23 @@ def test_the_maskless_flow_beside_the_loop_leaves_the_loops_estimator_as_the_gra
         assert perceived.flow_plain is not None and perceived.flow_plain.shape == perceived.flow.shape
         np.testing.assert_array_equal(perception.estimator.state.result.flow, perceived.flow)
     assert perception_for("seg", 0, plain=False)(scan).flow_plain is None
+
+
+def test_a_perception_cache_reproduces_the_drive_and_refuses_another(tmp_path, capsys):
+    cache = tmp_path / "cache"
+    arguments = ["eval", "odom", "--scenario", "sparse_50", "--frames", "4", "--masks", "seg", "--methods", "flow",
+                 "ssf", "-p", "map.confirm:=2", "--perception-cache", str(cache)]
+    first, second = tmp_path / "first.json", tmp_path / "second.json"
+    assert main([*arguments, "--json", str(first)]) == 0
+    assert "0 scans read" in capsys.readouterr().err
+    stored = sorted(path.name for path in (cache / "sparse_50").iterdir())
+    assert stored == ["drive.json", *(f"scan_{index:06d}.npz" for index in range(4))]
+    assert main([*arguments, "--json", str(second)]) == 0
+    assert "4 scans read" in capsys.readouterr().err
+    figures = [json.loads(path.read_text())["scenarios"]["sparse_50"]["methods"] for path in (first, second)]
+    for method in ("flow", "ssf"):  # the stored perception gives the very same poses
+        assert figures[1][method]["rpe_translation"] == figures[0][method]["rpe_translation"]
+        assert figures[1][method]["end_error"] == figures[0][method]["end_error"]
+    assert main([*arguments[:-2], "--seed", "5", "--perception-cache", str(cache)]) == 2
+    errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
+    assert len(errors) == 1 and "written for another drive (differs in seed)" in errors[0]

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle
-from ssf_eval.odom.metrics import kitti_drift, score
+from ssf_eval.odom.metrics import end_error, kitti_drift, score
 from ssf_eval.odom.trails import SweptPaths, left_behind, standing_now
 from ssf_common.records import Obstacles
 
@@ -44,6 +44,22 @@ def test_ate_is_zero_after_alignment_of_a_rigidly_moved_trajectory():
     assert scores.ate.rmse < 1e-6
     assert scores.rpe_translation.rmse < 1e-9  # relative motions are untouched
     assert scores.endpoint_pct > 1.0  # the end point itself is far off (no alignment there)
+
+
+def test_end_error_names_a_pitch_drift_as_height():
+    from scipy.spatial.transform import Rotation
+
+    truth = line(np.full(100, 1.0))
+    tilt = np.eye(4)
+    tilt[:3, :3] = Rotation.from_euler("y", -0.01, degrees=True).as_matrix()  # nose up a hundredth of a degree a step
+    estimate = [np.eye(4)]
+    for _ in range(100):
+        estimate.append(estimate[-1] @ tilt @ make_pose(1.0, 0.0, 0.0, 0.0))
+    end = end_error(truth, np.stack(estimate))
+    assert end.pitch_deg == pytest.approx(-1.0, abs=1e-6) and abs(end.roll_deg) < 1e-9 and abs(end.yaw_deg) < 1e-9
+    height = sum(np.sin(np.radians(0.01 * k)) for k in range(1, 101))  # each step climbs by the tilt so far
+    assert end.height_m == pytest.approx(height, rel=1e-6) and end.height_m > 0.8
+    assert end.horizontal_m < 0.01  # the ground distance is nearly the same
 
 
 def test_kitti_drift_of_a_one_percent_scale_error():

@@ -60,6 +60,10 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--poses", type=Path, metavar="DIR",
                           help="write every trajectory in the TUM format: DIR/SCENARIO_METHOD_tum.txt and "
                           "DIR/SCENARIO_truth_tum.txt (poses in the first scan's frame), for evo or a closer look")
+    evaluate.add_argument("--perception-cache", type=Path, metavar="DIR",
+                          help="store each scan's flow and mask under DIR/SCENARIO/ and read them back on a later run "
+                          "of the same drive (scenario, seed, warm-up, masks, perception.* settings): an odometry "
+                          "change then reruns a whole route in minutes; start a new DIR after changing perception code")
     add_odom_options(evaluate)
     evaluate.set_defaults(func=run_eval)
 
@@ -164,6 +168,17 @@ def format_table(results: dict) -> str:
     return "\n".join(lines)
 
 
+def format_end_errors(results: dict) -> str:
+    """Where each last pose is off: along the ground and in height (m), and roll / pitch / yaw (deg)."""
+    lines = ["where the last pose is off (m along the ground, m in height; deg roll, pitch, yaw in the vehicle frame):"]
+    for title, result in results.items():
+        for name, s in result.scores.items():
+            end = s.end
+            lines.append(f"  {title:<12} {name:<9} {end.horizontal_m:8.3f} {end.height_m:8.3f} {end.roll_deg:8.3f} "
+                         f"{end.pitch_deg:8.3f} {end.yaw_deg:8.3f}")
+    return "\n".join(lines)
+
+
 def run_odom(args: argparse.Namespace) -> int:
     """ssf odom run."""
     from ssf_common.checks import require_finite
@@ -213,8 +228,9 @@ def run_eval(args: argparse.Namespace) -> int:
     for path, what in ((args.json, "result file"), (args.plot, "picture"), (args.map_plot, "picture")):
         if path is not None:
             check_writable(path, what)
-    if args.poses is not None:
-        check_writable_dir(args.poses, "poses folder")
+    for folder, what in ((args.poses, "poses folder"), (args.perception_cache, "perception cache")):
+        if folder is not None:
+            check_writable_dir(folder, what)
     config = odom_config(args)
     scenarios = [scenario_of(name, args.agents) for name in args.scenarios]
     perception = (perception_for(args.masks, args.seed, perception_overrides(args), plain="flow" in args.methods)
@@ -226,12 +242,23 @@ def run_eval(args: argparse.Namespace) -> int:
               file=sys.stderr, flush=True)
         progress = lambda done: done % 25 == 0 and print(f"  {title}: scan {done}/{args.frames}", file=sys.stderr, flush=True)
         scans = sim_scans(scenario, args.seed, args.frames, args.warmup)
-        results[title] = run_sequence(scans, args.methods, perception, config, config.map.voxel, args.trail_every,
+        perceive = perception
+        if perception is not None and args.perception_cache is not None:
+            from ssf_eval.odom.cache import CachedPerception
+
+            drive = {"scenario": scenario.model_dump(mode="json"), "seed": args.seed, "warmup_s": args.warmup,
+                     "perception": perception_overrides(args)}
+            perceive = CachedPerception(perception, args.perception_cache / title, drive)
+        results[title] = run_sequence(scans, args.methods, perceive, config, config.map.voxel, args.trail_every,
                                       progress)
+        if perceive is not perception:
+            print(f"  {title}: perception of {perceive.read} scans read from {perceive.folder}, {perceive.computed} "
+                  "computed and stored", file=sys.stderr)
     print(f"odometry over {args.frames} scans after {args.warmup:g} s, seed {args.seed}, masks {args.masks} "
           "(RPE between consecutive scans: translation m, rotation deg; ATE m; trails: share of map voxels on agents' "
           "paths; left: of those, where no agent stands at that moment)")
     print(format_table(results))
+    print(format_end_errors(results))
     for title, result in results.items():
         floor = result.static_world
         print(f"{title}: the static world itself (the simulator's static points within ssf_range, same voxels) has "
@@ -247,6 +274,7 @@ def run_eval(args: argparse.Namespace) -> int:
                        "methods": {name: {"rpe_translation": s.rpe_translation._asdict(),
                                           "rpe_rotation_deg": s.rpe_rotation._asdict(), "ate": s.ate._asdict(),
                                           "drift": s.drift._asdict(), "endpoint_pct": s.endpoint_pct,
+                                          "end_error": s.end._asdict(),
                                           "trail_share": result.runs[name].trail_share,
                                           "left_behind_share": result.runs[name].left_share,
                                           "map_voxels_sampled": result.runs[name].map_voxels,

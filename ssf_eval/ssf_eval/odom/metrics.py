@@ -32,6 +32,17 @@ class Drift(NamedTuple):
     lengths: tuple[float, ...]
 
 
+class EndError(NamedTuple):
+    """Where the last pose is off (first scan's frame): position along the ground and in height, and the rotation
+    error as roll, pitch and yaw in the vehicle's frame. Height is what roll and pitch drift turn into."""
+
+    horizontal_m: float
+    height_m: float
+    roll_deg: float
+    pitch_deg: float
+    yaw_deg: float
+
+
 class OdomScores(NamedTuple):
     """Every figure of one trajectory against ground truth."""
 
@@ -41,6 +52,7 @@ class OdomScores(NamedTuple):
     drift: Drift
     endpoint_pct: float  # final position error as a share of the distance travelled
     distance: float  # m
+    end: EndError
 
 
 def trajectory(poses: np.ndarray, stamps_s: np.ndarray):
@@ -106,6 +118,17 @@ def kitti_drift(reference: np.ndarray, estimate: np.ndarray, lengths: tuple[floa
     return Drift(100.0 * float(np.mean(t_errors)), 100.0 * float(np.mean(r_errors)), len(t_errors), tuple(used))
 
 
+def end_error(reference: np.ndarray, estimate: np.ndarray) -> EndError:
+    """The last pose's error split into horizontal and height offset, and roll / pitch / yaw (deg, estimate against
+    reference, in the reference's vehicle frame)."""
+    from scipy.spatial.transform import Rotation
+
+    offset = np.asarray(estimate[-1][:3, 3] - reference[-1][:3, 3], np.float64)
+    turn = np.asarray(reference[-1][:3, :3]).T @ np.asarray(estimate[-1][:3, :3])
+    roll, pitch, yaw = Rotation.from_matrix(turn).as_euler("xyz", degrees=True)
+    return EndError(float(np.hypot(offset[0], offset[1])), float(offset[2]), float(roll), float(pitch), float(yaw))
+
+
 def score(reference: np.ndarray, estimate: np.ndarray, stamps_s: np.ndarray) -> OdomScores:
     """Every figure of one estimated trajectory (poses in the first scan's frame) against the reference."""
     reference, estimate = np.asarray(reference, np.float64), np.asarray(estimate, np.float64)
@@ -113,4 +136,5 @@ def score(reference: np.ndarray, estimate: np.ndarray, stamps_s: np.ndarray) -> 
     endpoint = float(np.linalg.norm(estimate[-1, :3, 3] - reference[-1, :3, 3]))
     return OdomScores(rpe(reference, estimate, stamps_s), rpe(reference, estimate, stamps_s, rotation=True),
                       ate(reference, estimate, stamps_s), kitti_drift(reference, estimate),
-                      100.0 * endpoint / distance if distance > 0 else float("nan"), distance)
+                      100.0 * endpoint / distance if distance > 0 else float("nan"), distance,
+                      end_error(reference, estimate))
