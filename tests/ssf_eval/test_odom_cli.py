@@ -173,6 +173,8 @@ def test_a_perception_cache_reproduces_the_drive_and_refuses_another(tmp_path, c
     for method in ("flow", "ssf"):  # the stored perception gives the very same poses
         assert figures[1][method]["rpe_translation"] == figures[0][method]["rpe_translation"]
         assert figures[1][method]["end_error"] == figures[0][method]["end_error"]
+    ssf_only = [*arguments[:9], "ssf", *arguments[11:]]  # the cache holds the maskless flow; ssf alone reads it too
+    assert main(ssf_only) == 0 and "4 scans read" in capsys.readouterr().err
     assert main([*arguments[:-2], "--seed", "5", "--perception-cache", str(cache)]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(errors) == 1 and "written for another drive (differs in seed)" in errors[0]

@@ -41,10 +41,14 @@ class CachedPerception:
                 stored = json.loads(key.read_text())
             except (OSError, ValueError) as error:
                 raise DataError(f"perception cache {self.folder}: unreadable {KEY_FILE} ({error})") from None
-            if stored != self.drive:
-                changed = sorted(name for name in set(stored) | set(self.drive) if stored.get(name) != self.drive.get(name))
+            changed = sorted(name for name in (set(stored) | set(self.drive)) - {"maskless_flow"}
+                             if stored.get(name) != self.drive.get(name))
+            if changed:
                 raise ConfigError(f"perception cache {self.folder} was written for another drive (differs in "
                                   f"{', '.join(changed)}): name a new folder")
+            if self.drive["maskless_flow"] and not stored.get("maskless_flow"):
+                raise ConfigError(f"perception cache {self.folder} holds no maskless flow (written without the "
+                                  "'flow' method): name a new folder to compare it")
         elif any(self.folder.iterdir()):
             raise ConfigError(f"perception cache {self.folder} is not empty and holds no {KEY_FILE}: name a new folder")
         else:
@@ -82,8 +86,9 @@ class CachedPerception:
         except (OSError, ValueError, KeyError) as error:
             print(f"perception cache {path}: unreadable ({error}); computing it again", file=sys.stderr)
             return None
-        wanted_plain = self.perception.plain is not None
-        if flow.shape != (points, 3) or dynamic.shape != (points,) or (plain is None) == wanted_plain:
+        if self.perception.plain is None:
+            plain = None  # stored for the 'flow' method, not asked for this time
+        if flow.shape != (points, 3) or dynamic.shape != (points,) or (plain is None) != (self.perception.plain is None):
             print(f"perception cache {path}: does not fit this scan of {points} points; computing it again",
                   file=sys.stderr)
             return None
