@@ -178,3 +178,13 @@ def test_a_perception_cache_reproduces_the_drive_and_refuses_another(tmp_path, c
     assert main([*arguments[:-2], "--seed", "5", "--perception-cache", str(cache)]) == 2
     errors = [line for line in capsys.readouterr().err.splitlines() if "error" in line]
     assert len(errors) == 1 and "written for another drive (differs in seed)" in errors[0]
+
+
+def test_the_agents_mask_leaves_every_agent_out_of_the_map(tmp_path):
+    from ssf_eval.odom.cli import perception_for
+    from ssf_eval.odom.sequence import scenario_of, sim_scans
+
+    scan = next(iter(sim_scans(scenario_of("dense_500"), 0, 2, 2.8)))  # cars standing in a queue
+    perceived = perception_for("agents", 0)(scan)
+    np.testing.assert_array_equal(perceived.dynamic_prob, (scan.instance > 0).astype(np.float32))
+    assert perceived.dynamic_prob.sum() > scan.dynamic.sum()  # standing agents too, not only the moving ones

@@ -51,8 +51,9 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--methods", "--method", nargs="+", default=list(ALL_METHODS), metavar="M",
                           help=f"default: {' '.join(ALL_METHODS)}; also ssf+twist: ssf with the simulated vehicle's "
                           "measured motion (wheel speed, yaw-rate gyro; the paper's '+ IMU' row)")
-    evaluate.add_argument("--masks", choices=("seg", "gt", "noisy"), default="seg",
-                          help="static mask: the segmentation (fusion loop), or ground truth (gt, noisy) stand-ins")
+    evaluate.add_argument("--masks", choices=("seg", "gt", "noisy", "agents"), default="seg",
+                          help="static mask: the segmentation (fusion loop), or ground truth (gt, noisy) stand-ins; "
+                          "agents: every point on an agent, standing or moving (a world without traffic in the map)")
     evaluate.add_argument("--trail-every", type=int, default=10, help="sample the maps' trails every N scans")
     evaluate.add_argument("--json", type=Path, help="write the results here (and the effective config beside them)")
     evaluate.add_argument("--plot", type=Path, help="PNG: every method's trajectory against the truth")

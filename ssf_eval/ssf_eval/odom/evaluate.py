@@ -31,6 +31,7 @@ class MaskSource(str, Enum):
 
     SEG = "seg"
     GT = "gt"
+    AGENTS = "agents"  # every point on an agent, moving or standing: a map of the world without any traffic in it
     NOISY = "noisy"
 
 
@@ -71,6 +72,8 @@ class Perception:
             return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3)
         if self.masks is MaskSource.GT:
             mask = scan.dynamic.astype(np.float32)
+        elif self.masks is MaskSource.AGENTS:
+            mask = (scan.instance > 0).astype(np.float32)
         else:
             pair = make_pair(scan.points, scan.next_points, np.zeros_like(scan.points), scan.dynamic, scan.instance)
             mask = noisy_mask(pair, self.rng)
