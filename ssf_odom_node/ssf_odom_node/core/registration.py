@@ -125,12 +125,18 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
         residual = np.einsum("ij,ij->i", n, x - target.points.take(matched, axis=0))
         scale = max(kernel, gate / 3.0)  # the kernel widens with the gate: coarse steps must see far correspondences
         robust = weights[found] * (scale ** 2 / (scale ** 2 + residual ** 2)) ** 2
-        jacobian = np.hstack([n, np.cross(x, n)])  # d residual / d (translation, rotation), perturbation on the left
+        # rotations about the sensor, not about the odometry frame's origin: a kilometre from the start, a turn about
+        # the origin is mostly a translation, and the step's conditioning (and its degenerate directions) with it
+        centre = transform[:3, 3].copy()
+        arm = x - centre
+        jacobian = np.hstack([n, np.cross(arm, n)])  # d residual / d (translation, rotation about the sensor)
         weighted = (jacobian * robust[:, None]).T
         hessian = weighted @ jacobian
         gradient = weighted @ residual
-        step = constrained_step(hessian, gradient, float(np.sqrt(np.mean(np.einsum("ij,ij->i", x, x)))))
-        transform = exp_se3(step) @ transform
+        step = constrained_step(hessian, gradient, float(np.sqrt(np.mean(np.einsum("ij,ij->i", arm, arm)))))
+        about_sensor = exp_se3(step)
+        about_sensor[:3, 3] += centre - about_sensor[:3, :3] @ centre  # the step moved to act about `centre`
+        transform = about_sensor @ transform
         rmse = float(np.sqrt((robust * residual ** 2).sum() / max(robust.sum(), 1e-12)))
         done += 1
         if np.abs(step).max() < tolerance:
