@@ -329,11 +329,12 @@ def test_where_the_flow_and_the_prior_agree_across_a_gap_the_flow_search_is_skip
     assert searched[-1] == 5 and len(searched) == 2, searched  # one search per gap: the prior's five headings
 
 
-@pytest.mark.parametrize("flow_excess, searched", [(0.04, False), (0.10, True)])
-def test_a_flow_motion_no_vehicle_makes_is_checked_from_constant_velocity(monkeypatch, flow_excess, searched):
+@pytest.mark.parametrize("flow_excess, refined, searched", [(0.04, True, False), (0.10, True, True), (0.30, False, True)])
+def test_a_flow_motion_no_vehicle_makes_is_checked_from_constant_velocity(monkeypatch, flow_excess, refined, searched):
     """Driving 1 m a scan, a flow that says 4 cm more is a change of speed a car makes in 0.1 s (4 m/s²) and is only
-    refined; 10 cm more (10 m/s², past braking at 0.8 g) is checked by a search from constant velocity as well, and
-    the pose stays right either way on a static street."""
+    refined; 10 cm more (10 m/s², past braking at 0.8 g) is checked by a search from constant velocity as well; 30 cm
+    more (30 m/s², past the flow gate: traffic taken for the world) is not refined at all. The pose stays right each
+    way on a static street."""
     from ssf_odom_node.core import odometry as core
 
     odometry = make_odometry("ssf", OdomConfig(ssf_range=100.0))
@@ -350,9 +351,21 @@ def test_a_flow_motion_no_vehicle_makes_is_checked_from_constant_velocity(monkey
     points = scan(3)
     overshot = transform_points(invert(make_pose(1.0 + flow_excess)), points) - points  # flow of a 1 m + excess step
     odometry.step(OdomInput(300_000_000, points, overshot, np.zeros(len(points), np.float32)))
+    gates.clear()
     step = odometry.step(OdomInput(400_000_000, scan(4)))  # predicted by the overshooting flow
+    assert (odometry.config.refine_gates in gates) == refined, gates
     assert (odometry.config.search_gates in gates) == searched, gates
+    if not refined:
+        assert step.predicted_by == "velocity" and odometry.rejected_flows == 1
     assert pose_error(step.pose, poses[4])[0] < 0.02
+
+
+def test_the_flow_gate_can_be_switched_off():
+    """With flow_gate 0 a flow motion however far from constant velocity is refined (and checked by a search)."""
+    odometry = make_odometry("flow", OdomConfig(flow_gate=(0.0, 0.0)))
+    far = make_pose(5.0)
+    assert odometry.possible(far, np.eye(4))
+    assert not make_odometry("flow").possible(far, np.eye(4))
 
 
 def test_a_motion_prior_must_be_a_finite_transform():

@@ -64,6 +64,13 @@ class OdomConfig(Section):
                                             "8 m/s², braking at about 0.8 g, over a 0.1 s scan period; a flow dragged "
                                             "along by traffic creeps away from constant velocity by less than a "
                                             "looser gate)")
+    flow_gate: tuple[float, float] = Field((0.2, 0.2), description="a flow motion farther than this (m, rad) from the "
+                                           "constant-velocity prediction, per scan period, is not believed at all: "
+                                           "0.2 m is 20 m/s² over a 0.1 s period, twice what a car's brakes give; there "
+                                           "the flow has taken traffic for the world (a platoon beside a slow ego) and "
+                                           "only the search from constant velocity runs. The turn gate is loose: a "
+                                           "vehicle's yaw rate jumps where its path turns in (0.1 rad per scan in the "
+                                           "simulator's corners) and the flow sees those turns right (0: no gate)")
     measured_gate: tuple[float, float] = Field((0.05, 0.01), description="with the vehicle's measured motion (wheel "
                                                "speed, gyro), a flow motion farther than this (m, rad) from it "
                                                "gives way to it: traffic that moves with the ego can fool the flow, "
@@ -279,6 +286,12 @@ class Odometry:
         return bool(np.linalg.norm(deviation[:3, 3]) <= distance * periods
                     and rotation_angle(deviation) <= angle * periods)
 
+    def possible(self, by_flow: np.ndarray, by_velocity: np.ndarray, periods: float = 1.0) -> bool:
+        """Whether the flow's prediction lies within the flow gate of constant velocity (always, where it is 0)."""
+        if min(self.config.flow_gate) <= 0:
+            return True
+        return self.agree(by_flow, by_velocity, periods, self.config.flow_gate)
+
     def periods(self, stamp_ns: int) -> float:
         """Scan periods since the last scan (at least one)."""
         return max(1.0, self.elapsed(stamp_ns) / self.config.scan_period)
@@ -370,6 +383,9 @@ class Odometry:
                     by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
         """A few iterations from the flow's prediction; where it contradicts constant velocity (or there is no flow),
         a search from constant velocity too, and the result that matches more points wins."""
+        if by_flow is not None and self.steps >= 2 and not self.possible(by_flow, by_velocity, periods):
+            self.rejected_flows += 1
+            by_flow = None
         if by_flow is not None:
             from_flow = point_to_plane(points, weights, target, by_flow, self.config.refine_gates, self.config.kernel)
             if self.steps < 2 or self.agree(by_flow, by_velocity, periods):
