@@ -69,8 +69,9 @@ class OdomConfig(Section):
                                            "0.2 m is 20 m/s² over a 0.1 s period, twice what a car's brakes give; there "
                                            "the flow has taken traffic for the world (a platoon beside a slow ego) and "
                                            "only the search from constant velocity runs. The turn gate is loose: a "
-                                           "vehicle's yaw rate jumps where its path turns in (0.1 rad per scan in the "
-                                           "simulator's corners) and the flow sees those turns right (0: no gate)")
+                                           "vehicle's yaw rate can jump where it starts to turn (0.1 rad per scan as the "
+                                           "simulator's car starts a lane change) and the flow sees those turns "
+                                           "right (0: no gate)")
     measured_gate: tuple[float, float] = Field((0.05, 0.01), description="with the vehicle's measured motion (wheel "
                                                "speed, gyro), a flow motion farther than this (m, rad) from it "
                                                "gives way to it: traffic that moves with the ego can fool the flow, "
