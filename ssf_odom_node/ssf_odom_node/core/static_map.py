@@ -36,11 +36,13 @@ class MapConfig(Section):
                            "share of the map is new since the last build (0: every scan)")
     max_speed: float = Field(0.6, ge=0.0, description="ssf: static points whose own motion (their flow minus the "
                              "ego motion the static flow gives) is faster than this stay out of the map (m/s; 0: off)")
-    confirm: int = Field(8, ge=1, description="ssf: scans that must observe a voxel static before it joins the map "
-                         "that is published and kept (registration uses every voxel that is held); 1: at once")
+    confirm: int = Field(12, ge=1, description="ssf: scans that must observe a voxel static before it joins the map "
+                         "that is published and kept (registration uses every voxel that is held); 1: at once. A "
+                         "walker the segmentation misses stands in a voxel for about as long as it takes to cross it "
+                         "(0.8 m at 1 m/s: 8 scans, 13 with its body): 12 keeps most of them out")
     confirm_window: int = Field(15, ge=1, description="ssf: an unconfirmed voxel is forgotten this many scans after "
                                 "it was first observed")
-    max_evidence: int = Field(8, ge=1, description="ssf: a voxel's evidence grows by one per scan that observes it "
+    max_evidence: int = Field(12, ge=1, description="ssf: a voxel's evidence grows by one per scan that observes it "
                               "static, up to this, and shrinks by one per scan whose beams pass through it; at zero "
                               "it leaves the map")
     clear_cell: float = Field(1.0, ge=0.0, le=10.0, description="ssf: angular cell of the range image that clears "
@@ -49,7 +51,7 @@ class MapConfig(Section):
                               "the voxel and the cell's depth spread on its surface (0: no clearing)")
 
     miss_weight: int = Field(4, ge=1, description="ssf: evidence a voxel loses per scan whose beams pass through it "
-                             "(4: a confirmed voxel leaves after two scans that see through it)")
+                             "(4: a confirmed voxel leaves after three scans that see through it)")
     moving_memory: float = Field(30.0, ge=0.0, description="ssf: voxels where the segmentation saw moving points "
                                  "(above the local ground) stay out of the published map for this long (s), and "
                                  "confirmed voxels they hold are unconfirmed; longer than agents stop at crossings "
