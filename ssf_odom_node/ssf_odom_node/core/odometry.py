@@ -383,7 +383,8 @@ class Odometry:
     def refine_next(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
                     by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
         """A few iterations from the flow's prediction; where it contradicts constant velocity (or there is no flow),
-        a search from constant velocity too, and the result that matches more points wins."""
+        a search from constant velocity too, and the result that matches more points wins; a flow past the flow gate
+        is not refined at all."""
         if by_flow is not None and self.steps >= 2 and not self.possible(by_flow, by_velocity, periods):
             self.rejected_flows += 1
             by_flow = None
