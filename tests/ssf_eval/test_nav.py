@@ -309,10 +309,12 @@ def test_the_planner_keeps_to_the_lanes_of_the_routes_direction():
     width = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0)).planner.config.vehicle.width
     inner = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0)).planner.config  # two 3.5 m lanes, the inner one
     assert (inner.corridor_left, inner.corridor_right) == pytest.approx((1.75 - width / 2, 5.25 - width / 2))
+    assert inner.passing.offset == pytest.approx(-3.5)  # it passes in the outer lane
     outer = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0, scenario={"ego.lane": 1})).planner.config
     assert (outer.corridor_left, outer.corridor_right) == pytest.approx((5.25 - width / 2, 1.75 - width / 2))
-    told = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0, planner={"corridor_left": 3.5})).planner.config
-    assert told.corridor_left == 3.5  # -p still overrides
+    assert outer.passing.offset == pytest.approx(3.5)  # ... in the inner one
+    told = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0, planner={"corridor_left": 3.5, "passing.offset": 0.0}))
+    assert told.planner.config.corridor_left == 3.5 and told.planner.config.passing.offset == 0.0  # -p overrides
 
 
 ICP_TEN_TIMES = """

@@ -11,8 +11,9 @@ from ssf_common.config import build
 from ssf_common.errors import ConfigError
 from ssf_common.geometry.boxes import box_corners
 from ssf_common.records import ObstacleKind, Obstacles
-from ssf_planner_node.core.avoidance import hyperplanes, separation
-from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.avoidance import hyperplanes, in_path, separation
+from ssf_planner_node.core.config import PassingConfig, PlannerConfig, VehicleConfig
+from ssf_planner_node.core.passing import LaneChooser
 from ssf_planner_node.core.planner import HARD_MARGIN, RdaPlanner, TickStatus, VehicleState
 from ssf_planner_node.core.route import Route
 
@@ -81,12 +82,12 @@ def test_a_car_outside_the_corridor_steers_back_instead_of_braking():
 
 def test_pressed_by_a_long_vehicle_on_the_right_the_car_keeps_off_the_oncoming_lane():
     """issue 11: swerves into the oncoming lane ended nose to nose with oncoming traffic (dead ends at 1000 agents); the
-    default corridor keeps the body right of the centre line; a symmetric one lets the car swing 3 m over it."""
+    default corridor keeps the body right of the centre line; a symmetric one lets the car swing over it."""
     bus = boxes([[40.0, -2.0]], [[30.0, 1.9]])  # 0.1 m closer than the comfort distance to the lane's car
     kept, clearance, _ = drive(planner_for([[0, 0], [300, 0]]), (0.0, 0.0, 0.0, 8.0), 100, lambda t: bus)
     assert kept[:, 1].max() < PlannerConfig().corridor_left + 0.05 and kept[-1, 0] > 35.0 and clearance.min() > 0.1
     swung, _, _ = drive(planner_for([[0, 0], [300, 0]], corridor_left=3.5), (0.0, 0.0, 0.0, 8.0), 100, lambda t: bus)
-    assert swung[:, 1].max() > 1.8
+    assert swung[:, 1].max() > PlannerConfig().corridor_left + 0.2
 
 
 def test_a_turn_never_swings_the_rear_into_someone_standing_beside_it():
@@ -302,3 +303,97 @@ def test_the_distance_bound_is_exact_to_first_order_in_position_and_heading():
             true = (ego @ normal).min() - (box @ normal).max()
             predicted = (normal @ moved_xy + planes.yaw_gains[0, 0] * moved_yaw - planes.offsets[0, 0]).min()
             assert abs(predicted - true) <= 10.0 * step ** 2
+
+
+def next_lane_pair(t: float) -> Obstacles:
+    """Two cars in the next lane at 3.6 m/s, one beside the ego's start and one 10 m ahead of it."""
+    return boxes([[3.6 * t, -3.55], [10.0 + 3.6 * t, -3.55]], [[4.4, 2.0], [4.4, 2.0]], [[3.6, 0.0], [3.6, 0.0]],
+                 stamp_ns=int(round(t * 1e9)))
+
+
+def test_with_a_headway_band_the_car_passes_slow_cars_in_the_next_lane():
+    """The headway keeps a distance from what lies ahead in the car's path; counted on every obstacle, the car ahead
+    in the next lane holds the ego beside its neighbour, with the band (the default) it passes both and keeps its lane."""
+    start = (0.0, 0.0, 0.0, 3.6)
+    held, _clearance, _steps = drive(planner_for([[0, 0], [400, 0]], obstacles={"headway_band": None}), start, 100,
+                                     next_lane_pair)
+    passed, clearance, _steps = drive(planner_for([[0, 0], [400, 0]]), start, 100, next_lane_pair)
+    assert passed[-1, 0] > 10.0 + 3.6 * 10 + 20.0 > held[-1, 0]  # well past the front car; held: not
+    assert passed[-1, 3] == pytest.approx(10.0, abs=0.3)
+    assert np.abs(passed[:, 1]).max() < 0.2 and clearance.min() > 1.0  # in its lane, clear of them
+
+
+def test_the_headway_band_still_keeps_the_headway_behind_a_slow_car_in_the_path():
+    lead = lambda t: boxes([[25.0 + 4.0 * t, 0.0]], [[4.4, 2.0]], [[4.0, 0.0]], stamp_ns=int(round(t * 1e9)))  # noqa: E731
+    gaps = {}
+    for band in (None, 0.5):
+        overrides = {"obstacles": {"headway_band": band}, "passing": {"offset": 0.0}}  # behind it, no passing
+        states, _clearance, _steps = drive(planner_for([[0, 0], [400, 0]], **overrides), (0.0, 0.0, 0.0, 8.0), 150, lead)
+        gaps[band] = 25.0 + 4.0 * 150 * TICK - states[-1, 0]
+        assert states[-1, 3] == pytest.approx(4.0, abs=0.3)  # follows at the lead's speed
+    assert gaps[0.5] == pytest.approx(gaps[None], abs=0.2)
+
+
+def test_in_path_counts_a_car_at_the_steps_it_is_predicted_to_cut_in():
+    steps = 5
+    ego_xy, heading = np.c_[np.arange(steps) * 2.0, np.zeros(steps)], np.tile([1.0, 0.0], (steps, 1))
+    cutting_in = np.stack([box_corners(np.array([12.0 + 2.0 * k, -3.55 + 0.9 * k]), 4.4, 2.0, 0.0) for k in range(steps)])
+    in_lane = np.stack([box_corners(np.array([15.0, 0.3]), 4.4, 2.0, 0.0)] * steps)
+    next_lane = np.stack([box_corners(np.array([15.0, 3.55]), 4.4, 2.0, 0.0)] * steps)
+    corners = np.stack([cutting_in, in_lane, next_lane], axis=1)  # (T, M, 4, 2)
+    inside = in_path(ego_xy, heading, 1.85, corners, 0.5)
+    assert inside[:, 1].all() and not inside[:, 2].any()
+    assert not inside[0, 0] and inside[-1, 0]
+    assert np.array_equal(inside[:, 0], np.sort(inside[:, 0]))  # once in, it stays in as it comes over
+
+
+ROUTE = Route(np.array([[0.0, 0.0], [600.0, 0.0]]))
+RIGHT_LANE = -3.5
+
+
+def chooser(**overrides) -> LaneChooser:
+    return LaneChooser(PassingConfig(offset=RIGHT_LANE, **overrides), VehicleConfig(), reference_speed=10.0)
+
+
+def cars(*rows) -> object:
+    """Cars (x, y, speed along x) of 4.4 x 2.0 m."""
+    rows = np.array(rows, dtype=float).reshape(-1, 3)
+    return boxes(rows[:, :2], np.tile([4.4, 2.0], (len(rows), 1)), np.c_[rows[:, 2], np.zeros(len(rows))])
+
+
+def test_moves_out_only_when_the_other_lane_is_clearly_faster_and_clear_beside():
+    def choice(*rows) -> float:  # the ego at x = 100 m on the route; rows relative to it
+        return chooser().choose(ROUTE, np.array([100.0, 0.0]), 0, cars(*[(100 + x, y, v) for x, y, v in rows]))
+
+    assert choice((20, 0, 4.0)) == RIGHT_LANE  # a slow car ahead, the lane beside free
+    assert choice((20, 0, 9.0)) == 0.0  # not 1.5 m/s faster there
+    assert choice((20, 0, 4.0), (30, RIGHT_LANE, 4.5)) == 0.0  # just as slow there
+    assert choice((20, 0, 4.0), (-6, RIGHT_LANE, 6.0)) == 0.0  # someone close behind in it
+    assert choice((20, 0, 4.0), (-30, RIGHT_LANE, 6.0)) == RIGHT_LANE  # far behind
+    assert choice((20, 0, 4.0), (20, 2 * RIGHT_LANE, 0.0)) == RIGHT_LANE  # two lanes off
+
+
+def test_keeps_a_choice_for_the_hold_time_then_returns_to_the_route_when_it_is_no_slower():
+    lanes = chooser(hold_s=3.0)
+    assert lanes.choose(ROUTE, np.array([0.0, 0.0]), 0, cars((20, 0, 4.0))) == RIGHT_LANE
+    passed = cars((20, 0, 4.0))  # the ego is now 30 m past the slow car, in the right lane
+    assert lanes.choose(ROUTE, np.array([50.0, RIGHT_LANE]), int(2.9e9), passed) == RIGHT_LANE  # held
+    assert lanes.choose(ROUTE, np.array([50.0, RIGHT_LANE]), int(3.1e9), passed) == 0.0
+
+
+def test_without_an_offset_the_car_keeps_to_the_route():
+    lanes = LaneChooser(PassingConfig(offset=0.0), VehicleConfig(), reference_speed=10.0)
+    assert lanes.choose(ROUTE, np.array([0.0, 0.0]), 0, cars((10, 0, 0.0))) == 0.0
+
+
+def test_the_planner_passes_a_slow_car_in_the_lane_beside_and_comes_back():
+    lead = lambda t: boxes([[25.0 + 4.0 * t, 0.0]], [[4.4, 2.0]], [[4.0, 0.0]], stamp_ns=int(round(t * 1e9)))  # noqa: E731
+    start, ticks = (0.0, 0.0, 0.0, 8.0), 200
+    behind, _clearance, _steps = drive(planner_for([[0, 0], [600, 0]], passing={"offset": 0.0}), start, ticks, lead)
+    planner = planner_for([[0, 0], [600, 0]])  # the defaults: the lane to the right, the headway band
+    passed, clearance, _steps = drive(planner, start, ticks, lead)
+    lead_x = 25.0 + 4.0 * ticks * TICK
+    assert behind[-1, 0] < lead_x < passed[-1, 0] - 50.0
+    assert passed[:, 1].min() == pytest.approx(RIGHT_LANE, abs=0.4) and abs(passed[-1, 1]) < 0.3  # out and back
+    assert passed[-1, 3] == pytest.approx(10.0, abs=0.3) and clearance.min() > 1.0
+    assert planner.stats.fallbacks == 0

@@ -71,7 +71,8 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
     assert any(len(tick.obstacles) for tick in ticks) and ticks[-1].command.linear > 0.5
     corridor = loop.planner.config
     node, publishers, commands = graph("solver.deadline_ms:=0.0", f"corridor_left:={corridor.corridor_left}",
-                                       f"corridor_right:={corridor.corridor_right}")
+                                       f"corridor_right:={corridor.corridor_right}",
+                                       f"passing.offset:={corridor.passing.offset}")
     publishers["route"].publish(route_message(loop.planner.route))
     assert wait_until(lambda: node.planner.route is not None)
     assert node.planner.route.length == pytest.approx(loop.planner.route.length)

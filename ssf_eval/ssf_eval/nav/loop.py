@@ -317,12 +317,17 @@ class ClosedLoop:
             else None, moving_speed_mps=self.moving.speed)
 
 
-def lanes_corridor(sim: Simulator, width: float) -> dict[str, float]:
+def lanes_corridor(sim: Simulator, width: float) -> dict[str, Any]:
     """The planner's corridor on the simulated road: the car's body on the lanes of the route's direction, between the
-    centre line and the road edge (right-hand traffic); `-p corridor_left:=...` still overrides it."""
+    centre line and the road edge (right-hand traffic), and the lane beside the route's for passing (none on a road
+    with one lane each way); `-p corridor_left:=...` or `-p passing.offset:=...` still overrides them."""
     section = sim.world.section
+    lanes = [float(lane) for lane in section.lane_centres]
+    route_lane = int(np.argmin([abs(lane - sim.lane_offset) for lane in lanes]))
+    beside = route_lane + 1 if route_lane + 1 < len(lanes) else route_lane - 1
     return {"corridor_left": max(-sim.lane_offset - width / 2, 0.1),
-            "corridor_right": max(sim.lane_offset + section.road_edge - width / 2, 0.1)}
+            "corridor_right": max(sim.lane_offset + section.road_edge - width / 2, 0.1),
+            "passing": {"offset": lanes[beside] - lanes[route_lane] if beside >= 0 else 0.0}}
 
 
 def run_trial(spec: TrialSpec) -> TrialRecord:

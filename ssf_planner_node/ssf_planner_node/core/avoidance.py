@@ -118,10 +118,21 @@ def separation(ego: np.ndarray, obstacle: np.ndarray) -> tuple[np.ndarray, np.nd
     return normal, np.take_along_axis(value, best[..., None], axis=-1)[..., 0]
 
 
+def in_path(ego_xy: np.ndarray, heading: np.ndarray, width: float, corners: np.ndarray, band: float) -> np.ndarray:
+    """Per step (T) and obstacle (M): whether its footprint reaches within `band` of the strip the car sweeps along its
+    heading (a car in the next lane does not; one cutting in does, at the steps it is predicted there)."""
+    left = np.stack([-heading[:, 1], heading[:, 0]], axis=1)
+    lateral = np.einsum("tmvi,ti->tmv", corners - ego_xy[:, None, None, :], left)
+    reach = width / 2 + band
+    return (lateral.min(axis=-1) < reach) & (lateral.max(axis=-1) > -reach)
+
+
 def hyperplanes(ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_speed: np.ndarray, length: float, width: float,
-                corners: np.ndarray, slots: int) -> Hyperplanes:
+                corners: np.ndarray, slots: int, band: float | None = None) -> Hyperplanes:
     """The dual step: for each horizon step (T) and obstacle (M <= slots), the separating direction between the
-    planned footprint and the predicted obstacle, as a constraint on the ego position (padded to `slots`)."""
+    planned footprint and the predicted obstacle, as a constraint on the ego position (padded to `slots`); the closing
+    speed counts only for obstacles within `band` (m) of the car's path (its sides carried along its heading; None:
+    for every obstacle)."""
     steps, count = len(ego_xy), corners.shape[1]
     normals = np.zeros((steps, slots, 2))
     yaw_gains = np.zeros((steps, slots, BINDING_CORNERS))
@@ -144,4 +155,6 @@ def hyperplanes(ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_speed: np.ndarray, 
         distances[:, :count] = distance
         heading = np.stack([np.cos(ego_yaw), np.sin(ego_yaw)], axis=1)
         closing[:, :count] = np.maximum(-np.einsum("tmi,ti->tm", normal, heading), 0.0) * np.maximum(ego_speed, 0.0)[:, None]
+        if band is not None:
+            closing[:, :count] *= in_path(ego_xy, heading, width, corners, band)
     return Hyperplanes(normals, yaw_gains, offsets, distances, closing)

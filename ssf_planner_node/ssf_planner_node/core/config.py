@@ -55,6 +55,9 @@ class ObstacleConfig(Section):
     slack_gain: float = Field(30.0, ge=0.0, description="cost per metre of distance below comfort_distance, per step")
     headway: float = Field(0.8, ge=0.0, description="soft: extra distance (s x own speed towards the obstacle) kept "
                            "from what lies ahead, since it may stop at once")
+    headway_band: float | None = Field(0.5, ge=0.0, description="the headway counts only for obstacles within this "
+                                       "distance (m) of the strip the car sweeps along its heading, so a car in the "
+                                       "next lane can be passed (null: every obstacle the car closes on)")
     static_speed: float = Field(0.01, ge=0.0, description="obstacles slower than this (m/s) are taken as static")
     latency_margin: float = Field(0.0, ge=0.0, description="each obstacle grows by this much (m) on every side per "
                                   "second of its age when the plan starts: where its constant velocity puts an object "
@@ -67,6 +70,20 @@ class ObstacleConfig(Section):
             raise ValueError(f"comfort_distance ({self.comfort_distance}) must be at least safety_distance "
                              f"({self.safety_distance})")
         return self
+
+
+class PassingConfig(Section):
+    """Passing slower traffic in the lane beside the route (map-free: that lane is an offset from the route)."""
+
+    offset: float = Field(-3.5, description="lateral offset (m, left of the route positive) of the lane the car may pass "
+                          "in (default: the outer of two 3.5 m lanes, as the corridor's default); 0: the car keeps to "
+                          "the route")
+    gain: float = Field(1.5, ge=0.0, description="how much faster (m/s) the traffic in that lane must let the car drive "
+                        "than the traffic ahead on its own")
+    look_ahead: float = Field(40.0, gt=0.0, description="traffic this far ahead (m along the route) sets a lane's speed")
+    clear_behind: float = Field(10.0, ge=0.0, description="the lane moved into is free from beside the car to this far "
+                                "behind its rear (m)")
+    hold_s: float = Field(3.0, ge=0.0, description="a choice of lane is kept at least this long (s)")
 
 
 class SolverConfig(Section):
@@ -105,6 +122,7 @@ class PlannerConfig(Section):
     vehicle: VehicleConfig = VehicleConfig()
     weights: WeightsConfig = WeightsConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
+    passing: PassingConfig = PassingConfig()
     solver: SolverConfig = SolverConfig()
 
     @model_validator(mode="after")

@@ -19,6 +19,7 @@ from ssf_common.records import Obstacles, Plan
 from ssf_planner_node.core import avoidance
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.models import Command, command_of, rollout, trajectory
+from ssf_planner_node.core.passing import LaneChooser
 from ssf_planner_node.core.problem import Reference, TrackingProblem
 from ssf_planner_node.core.route import Route
 
@@ -114,6 +115,7 @@ class RdaPlanner:
         self._memory: _Memory | None = None
         self._applied = np.zeros(2)
         self._ego_radius = 0.5 * float(np.hypot(config.vehicle.length, config.vehicle.width))
+        self.lanes = LaneChooser(config.passing, config.vehicle, config.reference_speed)
 
     def set_route(self, route: Route) -> None:
         """Follow another route from now on."""
@@ -132,7 +134,8 @@ class RdaPlanner:
         # 1. warm start: the previous plan shifted to now (or coasting), and the reference along it
         controls = self._warm_controls(state)
         nominal = rollout(self._trajectory, state.vector, controls)
-        reference = self._reference(nominal, stale)
+        offset = self.lanes.choose(self.route, state.vector[:2], state.stamp_ns, obstacles)
+        reference = self._reference(nominal, stale, offset)
         # 2. the obstacles nearest to the planned motion, their footprints predicted over the horizon
         latency = (state.stamp_ns - obstacles.stamp_ns) * 1e-9 if len(obstacles) else 0.0
         times = latency + cfg.dt * np.arange(cfg.horizon + 1)
@@ -165,7 +168,7 @@ class RdaPlanner:
             clearance, intrusion = self._margins(planes.distances)
             if intrusion >= 0.0 and self._next_tick_margin(state, controls, corners) >= 0.0:
                 clear = _Candidate(nominal, controls, clearance)
-            reference = self._reference(nominal, stale)
+            reference = self._reference(nominal, stale, offset)
             if moved < cfg.solver.tolerance:
                 break
         elapsed_ms = (time.perf_counter() - started) * 1e3
@@ -213,8 +216,9 @@ class RdaPlanner:
         controls[tail, 0] = 0.0
         return controls
 
-    def _reference(self, nominal: np.ndarray, stale: bool) -> Reference:
-        """Route points nearest the nominal positions (steps 1..H), headings unwrapped to the nominal's, speeds."""
+    def _reference(self, nominal: np.ndarray, stale: bool, offset: float = 0.0) -> Reference:
+        """Route points nearest the nominal positions (steps 1..H), moved `offset` to the left, headings unwrapped to
+        the nominal's, speeds."""
         cfg = self.config
         points = self.route.project(nominal[1:, :2])
         s = np.maximum.accumulate(points.s)
@@ -223,12 +227,12 @@ class RdaPlanner:
         speeds = self.route.speed_limit(s, cfg.reference_speed, cfg.goal_decel)
         if stale:
             speeds = np.minimum(speeds, cfg.stale_speed)
-        return Reference(points.point, points.normal, headings, speeds)
+        return Reference(points.point + offset * points.normal, points.normal, headings, speeds, offset)
 
     def _hyperplanes(self, nominal: np.ndarray, corners: np.ndarray) -> avoidance.Hyperplanes:
         cfg = self.config
         return avoidance.hyperplanes(nominal[:, :2], nominal[:, 2], nominal[:, 3], cfg.vehicle.length,
-                                     cfg.vehicle.width, corners, cfg.obstacles.max_obstacles)
+                                     cfg.vehicle.width, corners, cfg.obstacles.max_obstacles, cfg.obstacles.headway_band)
 
     def _hard_distances(self, now: np.ndarray) -> np.ndarray:
         """Per obstacle slot, the distance no plan may go under: the safety distance, or a little under the present

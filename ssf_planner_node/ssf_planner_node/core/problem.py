@@ -28,12 +28,14 @@ QUIET = {
 
 
 class Reference(NamedTuple):
-    """What the plan tracks at steps 1..H: route points (H, 2), route normals (H, 2), headings (H,), speeds (H,)."""
+    """What the plan tracks at steps 1..H: points (H, 2) on the route, moved `offset` (m) along its normals (H, 2) when
+    the car passes in the lane beside it, headings (H,), speeds (H,)."""
 
     points: np.ndarray
     normals: np.ndarray
     headings: np.ndarray
     speeds: np.ndarray
+    offset: float = 0.0
 
 
 class Solution(NamedTuple):
@@ -147,8 +149,9 @@ class TrackingProblem:
         soft = cfg.obstacles.comfort_distance + margins.ravel()
         hard = np.full(slots, cfg.obstacles.safety_distance) if hard is None else np.asarray(hard, dtype=np.float64)
         lbx, ubx = self._bounds(nominal_states, soft, np.tile(hard, horizon))
-        corridor_low = np.tile([-cfg.corridor_right, -np.inf], horizon)  # lateral + outside >= -right
-        corridor_high = np.tile([np.inf, cfg.corridor_left], horizon)  # lateral - outside <= left
+        # the corridor stays along the route while the tracked points are moved by the reference's offset
+        corridor_low = np.tile([-cfg.corridor_right - reference.offset, -np.inf], horizon)  # lateral + outside >= -right
+        corridor_high = np.tile([np.inf, cfg.corridor_left - reference.offset], horizon)  # lateral - outside <= left
         rows = 1 + BINDING_CORNERS  # per obstacle slot and step
         lbg = np.r_[np.zeros(self._equalities), corridor_low, np.repeat(soft, rows)]
         ubg = np.r_[np.zeros(self._equalities), corridor_high, np.full(horizon * slots * rows, np.inf)]
