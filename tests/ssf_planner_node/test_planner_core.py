@@ -397,3 +397,13 @@ def test_the_planner_passes_a_slow_car_in_the_lane_beside_and_comes_back():
     assert passed[:, 1].min() == pytest.approx(RIGHT_LANE, abs=0.4) and abs(passed[-1, 1]) < 0.3  # out and back
     assert passed[-1, 3] == pytest.approx(10.0, abs=0.3) and clearance.min() > 1.0
     assert planner.stats.fallbacks == 0
+
+
+def test_the_headway_band_leaves_people_beside_the_path_their_headway():
+    """A box 10 m ahead in the next lane: a car there keeps its lane (no headway), a person may step out (headway)."""
+    box = box_corners(np.array([10.0, -3.55]), 0.6, 0.6, 0.0)[None, None]
+    ego_xy, yaw, speed = np.zeros((1, 2)), np.zeros(1), np.full(1, 8.0)
+    car = hyperplanes(ego_xy, yaw, speed, 4.69, 1.85, box, 1, band=0.5, lanes_kept=np.array([True]))
+    person = hyperplanes(ego_xy, yaw, speed, 4.69, 1.85, box, 1, band=0.5, lanes_kept=np.array([False]))
+    unbanded = hyperplanes(ego_xy, yaw, speed, 4.69, 1.85, box, 1)
+    assert car.closing[0, 0] == 0.0 and person.closing[0, 0] == unbanded.closing[0, 0] > 4.0

@@ -128,11 +128,13 @@ def in_path(ego_xy: np.ndarray, heading: np.ndarray, width: float, corners: np.n
 
 
 def hyperplanes(ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_speed: np.ndarray, length: float, width: float,
-                corners: np.ndarray, slots: int, band: float | None = None) -> Hyperplanes:
+                corners: np.ndarray, slots: int, band: float | None = None,
+                lanes_kept: np.ndarray | None = None) -> Hyperplanes:
     """The dual step: for each horizon step (T) and obstacle (M <= slots), the separating direction between the
     planned footprint and the predicted obstacle, as a constraint on the ego position (padded to `slots`); the closing
     speed counts only for obstacles within `band` (m) of the car's path (its sides carried along its heading; None:
-    for every obstacle)."""
+    for every obstacle), for those that keep their lanes (`lanes_kept` (M,): vehicles; default all); a person beside
+    the path may step into it at once, so the closing speed always counts for them."""
     steps, count = len(ego_xy), corners.shape[1]
     normals = np.zeros((steps, slots, 2))
     yaw_gains = np.zeros((steps, slots, BINDING_CORNERS))
@@ -156,5 +158,6 @@ def hyperplanes(ego_xy: np.ndarray, ego_yaw: np.ndarray, ego_speed: np.ndarray, 
         heading = np.stack([np.cos(ego_yaw), np.sin(ego_yaw)], axis=1)
         closing[:, :count] = np.maximum(-np.einsum("tmi,ti->tm", normal, heading), 0.0) * np.maximum(ego_speed, 0.0)[:, None]
         if band is not None:
-            closing[:, :count] *= in_path(ego_xy, heading, width, corners, band)
+            kept = np.ones(count, dtype=bool) if lanes_kept is None else np.asarray(lanes_kept, dtype=bool)
+            closing[:, :count] *= in_path(ego_xy, heading, width, corners, band) | ~kept[None, :]
     return Hyperplanes(normals, yaw_gains, offsets, distances, closing)

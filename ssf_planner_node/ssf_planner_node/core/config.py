@@ -55,9 +55,10 @@ class ObstacleConfig(Section):
     slack_gain: float = Field(30.0, ge=0.0, description="cost per metre of distance below comfort_distance, per step")
     headway: float = Field(0.8, ge=0.0, description="soft: extra distance (s x own speed towards the obstacle) kept "
                            "from what lies ahead, since it may stop at once")
-    headway_band: float | None = Field(0.5, ge=0.0, description="the headway counts only for obstacles within this "
+    headway_band: float | None = Field(0.5, ge=0.0, description="the headway counts only for vehicles within this "
                                        "distance (m) of the strip the car sweeps along its heading, so a car in the "
-                                       "next lane can be passed (null: every obstacle the car closes on)")
+                                       "next lane can be passed (people and unknown objects: always; null: every "
+                                       "obstacle the car closes on)")
     static_speed: float = Field(0.01, ge=0.0, description="obstacles slower than this (m/s) are taken as static")
     latency_margin: float = Field(0.0, ge=0.0, description="each obstacle grows by this much (m) on every side per "
                                   "second of its age when the plan starts: where its constant velocity puts an object "

@@ -15,7 +15,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ssf_common.geometry.kinematics import PlanarState, driven
-from ssf_common.records import Obstacles, Plan
+from ssf_common.records import ObstacleKind, Obstacles, Plan
 from ssf_planner_node.core import avoidance
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.models import Command, command_of, rollout, trajectory
@@ -148,10 +148,11 @@ class RdaPlanner:
         chosen = avoidance.nearest_obstacles(corners, nominal[:, :2], self._ego_radius, cfg.obstacles.max_obstacles,
                                              cfg.obstacles.range)
         corners = corners[:, chosen]
+        lanes_kept = obstacles.kinds[chosen] == ObstacleKind.VEHICLE  # the headway band: vehicles keep their lanes
         # 3. rounds of dual step (separating directions) and primal step (QP), until the plan settles; the QP holds
         # the footprint's orientation at the nominal one, so each round's plan is checked against the true shapes and
         # the last one that keeps clear is taken
-        planes = self._hyperplanes(nominal, corners)
+        planes = self._hyperplanes(nominal, corners, lanes_kept)
         hard = self._hard_distances(planes.distances[0])  # never more than the car has now: one closer may still move
         rounds, solution, clear = 0, None, None
         for rounds in range(1, cfg.solver.iterations + 1):
@@ -164,7 +165,7 @@ class RdaPlanner:
             settled = rollout(self._trajectory, state.vector, controls)
             moved = float(np.linalg.norm(settled[:, :2] - nominal[:, :2], axis=1).max())
             nominal = settled
-            planes = self._hyperplanes(nominal, corners)  # the next round's dual step, and the check of this plan
+            planes = self._hyperplanes(nominal, corners, lanes_kept)  # the next round's dual step, the check of this plan
             clearance, intrusion = self._margins(planes.distances)
             if intrusion >= 0.0 and self._next_tick_margin(state, controls, corners) >= 0.0:
                 clear = _Candidate(nominal, controls, clearance)
@@ -229,10 +230,13 @@ class RdaPlanner:
             speeds = np.minimum(speeds, cfg.stale_speed)
         return Reference(points.point + offset * points.normal, points.normal, headings, speeds, offset)
 
-    def _hyperplanes(self, nominal: np.ndarray, corners: np.ndarray) -> avoidance.Hyperplanes:
+    def _hyperplanes(self, nominal: np.ndarray, corners: np.ndarray,
+                     lanes_kept: np.ndarray | None = None) -> avoidance.Hyperplanes:
+        """The dual step along the nominal trajectory (`lanes_kept`: the obstacles the headway band applies to)."""
         cfg = self.config
         return avoidance.hyperplanes(nominal[:, :2], nominal[:, 2], nominal[:, 3], cfg.vehicle.length,
-                                     cfg.vehicle.width, corners, cfg.obstacles.max_obstacles, cfg.obstacles.headway_band)
+                                     cfg.vehicle.width, corners, cfg.obstacles.max_obstacles, cfg.obstacles.headway_band,
+                                     lanes_kept)
 
     def _hard_distances(self, now: np.ndarray) -> np.ndarray:
         """Per obstacle slot, the distance no plan may go under: the safety distance, or a little under the present
