@@ -134,6 +134,10 @@ def _column(values, count: int, shape: tuple[int, ...], dtype) -> np.ndarray:
     return array.reshape((count, *shape))
 
 
+OBSTACLE_COLUMNS = ("ids", "kinds", "centres", "sizes", "yaws", "velocities", "velocity_covariances", "yaw_rates",
+                    "point_counts", "confidences")  # the per-obstacle columns of Obstacles
+
+
 @dataclass(frozen=True)
 class Obstacles:
     """Oriented boxes with constant-velocity motion, one row per obstacle (columnar arrays), in `frame_id`."""
@@ -176,9 +180,14 @@ class Obstacles:
 
     def take(self, selection: np.ndarray) -> Obstacles:
         """The obstacles at an index or boolean selection."""
-        columns = ("ids", "kinds", "centres", "sizes", "yaws", "velocities", "velocity_covariances", "yaw_rates",
-                   "point_counts", "confidences")
-        return replace(self, **{name: getattr(self, name)[selection] for name in columns})
+        return replace(self, **{name: getattr(self, name)[selection] for name in OBSTACLE_COLUMNS})
+
+    def joined(self, other: Obstacles) -> Obstacles:
+        """These obstacles and another set in the same frame, at this set's stamp."""
+        if other.frame_id != self.frame_id:
+            raise ValueError(f"cannot join obstacles in '{other.frame_id}' to obstacles in '{self.frame_id}'")
+        return replace(self, **{name: np.concatenate([getattr(self, name), getattr(other, name)])
+                                for name in OBSTACLE_COLUMNS})
 
     def transformed(self, transform: np.ndarray, frame_id: str) -> Obstacles:
         """The same obstacles expressed in another frame (transform: new frame <- this frame)."""

@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from ssf_common.errors import ConfigError
+from ssf_common.records import ObstacleKind
 
+from ssf_eval.nav.perception import Observation
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
 from sim_bridge.agents import AgentKind
 from ssf_eval.nav.loop import (PERCEPTION_NAMES, ClosedLoop, DelayLine, MovingTime, TrialOutcome, TrialRecord, TrialSpec,
@@ -316,6 +318,21 @@ def test_the_planner_keeps_to_the_lanes_of_the_routes_direction():
     told = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0, planner={"corridor_left": 3.5, "passing.offset": 0.0}))
     assert told.planner.config.corridor_left == 3.5 and told.planner.config.passing.offset == 0.0  # -p overrides
 
+
+
+def test_ground_truth_perception_also_reports_the_parked_cars():
+    """The planner must not swing into a parked car beside the outer lane because ground truth left it out."""
+    loop = ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0))
+    parked = loop.perception.parked
+    assert len(parked) > 0 and not parked.velocities.any()
+    assert (parked.kinds == ObstacleKind.VEHICLE).all() and (parked.ids == 0).all()
+    frame = loop.frame
+    seen = loop.perception.observe(Observation(frame, frame.pose, np.eye(4)))  # the world frame as the odometry's
+    ego = frame.base_pose[:2, 3]
+    within = np.linalg.norm(parked.centres[:, :2] - ego, axis=1) <= loop.perception.max_range
+    agents = np.count_nonzero(np.linalg.norm(frame.agents.position[:, :2] - ego, axis=1) <= loop.perception.max_range)
+    assert within.any() and len(seen) == agents + np.count_nonzero(within)
+    assert np.allclose(seen.centres[agents:, :2], parked.centres[within, :2])
 
 ICP_TEN_TIMES = """
 import os

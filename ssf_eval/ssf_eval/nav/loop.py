@@ -19,7 +19,7 @@ from ssf_common.config import build
 from ssf_common.errors import ConfigError
 from ssf_common.records import Obstacles, Plan
 from ssf_common.geometry.se3 import invert
-from ssf_eval.nav.perception import ODOM_FRAME, Observation, make_perception
+from ssf_eval.nav.perception import ODOM_FRAME, GroundTruthPerception, Observation, make_perception
 from ssf_eval.nav.film import TrialFilm
 from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose, whole_scan_config
 from ssf_planner_node.core.config import PlannerConfig
@@ -215,6 +215,8 @@ class ClosedLoop:
         # the LiDAR is cast only for those who read it (a video shows the scan): ground truth and the follower do not
         reads = spec.uses_ssf or bool(spec.video) or (self.perception is not None and self.perception.reads_scan)
         self.sim = Simulator(self.scenario, spec.seed, scans=reads)
+        if isinstance(self.perception, GroundTruthPerception):
+            self.perception.know(self.sim.world)
         self.frame = self.sim.reset()
         self.world_to_odom = invert(self.frame.base_pose)  # the odometry frame: the ego's start pose
         # both drivers follow the whole route (the follower knows no other); the trial is won `route_length` along it

@@ -13,10 +13,12 @@ from typing import Protocol
 import numpy as np
 from pydantic import Field
 
-from sim_bridge.ros_messages import agent_obstacles
+from sim_bridge.ros_messages import WORLD_FRAME, agent_obstacles
 from sim_bridge.simulator import Frame
+from sim_bridge.world import World
+from ssf_common.dataset.pairs import PointClass
 from ssf_common.errors import ConfigError
-from ssf_common.records import Obstacles
+from ssf_common.records import ObstacleKind, Obstacles
 from ssf_seg_node.core.obstacles import StillClusters, StillConfig, still_clusters
 
 ODOM_FRAME = "odom"
@@ -52,20 +54,36 @@ class DbscanConfig(StillConfig):
 
 
 class GroundTruthPerception:
-    """The simulator's agents as boxes with their exact velocities (no LiDAR)."""
+    """The simulator's agents as boxes with their exact velocities, and its parked cars (no LiDAR)."""
 
     name = "gt"
     reads_scan = False
 
     def __init__(self, max_range: float = 60.0) -> None:
         self.max_range = max_range
+        self.parked = Obstacles.empty(0, WORLD_FRAME)
+
+    def know(self, world: World) -> None:
+        """Take the world's parked cars: still boxes beside the lanes, which the car must not swing into."""
+        self.parked = parked_cars(world)
 
     def observe(self, observation: Observation) -> Obstacles:
-        """Every agent within range, in the odometry frame."""
+        """Every agent and parked car within range, in the odometry frame."""
         frame = observation.frame
-        near = np.linalg.norm(frame.agents.position[:, :2] - frame.base_pose[:2, 3], axis=1) <= self.max_range
-        boxes = agent_obstacles(frame.agents.take(near), frame.stamp_ns)
-        return boxes.transformed(observation.world_to_odom, ODOM_FRAME)
+        agents = agent_obstacles(frame.agents, frame.stamp_ns).joined(replace(self.parked, stamp_ns=frame.stamp_ns))
+        near = np.linalg.norm(agents.centres[:, :2] - frame.base_pose[:2, 3], axis=1) <= self.max_range
+        return agents.take(near).transformed(observation.world_to_odom, ODOM_FRAME)
+
+
+def parked_cars(world: World) -> Obstacles:
+    """The world's parked cars as still vehicle boxes in the world frame (track id 0: not agents)."""
+    structure = world.structure
+    boxes = structure.boxes[structure.box_classes == PointClass.PARKED_CAR]
+    count = len(boxes)
+    ground = world.ground.height(boxes[:, 0], boxes[:, 1]) if count else np.zeros(0)
+    return Obstacles(0, WORLD_FRAME, ids=np.zeros(count, np.int64), kinds=np.full(count, ObstacleKind.VEHICLE),
+                     centres=np.c_[boxes[:, :2], ground + boxes[:, 5] / 2], sizes=boxes[:, 3:6], yaws=boxes[:, 2],
+                     velocities=np.zeros((count, 3)))
 
 
 @dataclass
