@@ -12,7 +12,8 @@ from ssf_common import messages, pose_msgs
 from ssf_common.errors import MessageError
 from ssf_common.pointcloud import cloud_to_array, decode_cloud, xyz_to_cloud
 from ssf_common.geometry.se3 import yaw_of
-from ssf_common.records import MotionMask, Obstacles, OdometryEstimate, Plan, SceneFlow, Segmentation, SemanticFlow
+from ssf_common.records import (EgoMotion, MotionMask, Obstacles, OdometryEstimate, Plan, PriorSource, SceneFlow,
+                                Segmentation, SemanticFlow)
 
 FLOW_FIELDS = ("flow_x", "flow_y", "flow_z")
 VELOCITY_COVARIANCE_SIZE = 9
@@ -53,17 +54,62 @@ def _probabilities(values: np.ndarray, what: str) -> np.ndarray:
 
 
 def scene_flow_to_cloud(flow: SceneFlow) -> Any:
-    """/ssf/flow: x y z flow_x flow_y flow_z iteration (constant per point)."""
+    """/ssf/flow: x y z flow_x flow_y flow_z iteration (constant per point) prior (the dynamic probability the flow
+    was conditioned on; 0 without one). Its ego motion travels on /ssf/ego_motion (`ego_motion_to_msg`)."""
+    prior = np.zeros(len(flow.points), np.float32) if flow.prior is None else np.asarray(flow.prior, np.float32)
     return xyz_to_cloud(flow.points, messages.header(flow.stamp_ns, flow.frame_id),
                         flow_x=flow.flow[:, 0], flow_y=flow.flow[:, 1], flow_z=flow.flow[:, 2],
-                        iteration=np.full(len(flow.points), flow.iteration, dtype=np.uint32))
+                        iteration=np.full(len(flow.points), flow.iteration, dtype=np.uint32), prior=prior)
 
 
 def scene_flow_from_cloud(msg: Any) -> SceneFlow:
-    """A /ssf/flow cloud as a SceneFlow."""
+    """A /ssf/flow cloud as a SceneFlow (its prior None where the cloud has no prior field; no ego motion yet)."""
     points, xyz = _finite_xyz(msg, "flow cloud")
+    prior = _probabilities(points["prior"], "flow cloud prior") if "prior" in (points.dtype.names or ()) else None
     return SceneFlow(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz, _flow_of(points, "flow cloud"),
-                     _iteration_of(points))
+                     _iteration_of(points), prior)
+
+
+def ego_motion_to_msg(ego: EgoMotion) -> Any:
+    """ssf_interfaces/EgoMotion."""
+    return messages.msg_type("ssf_interfaces/msg/EgoMotion")(
+        header=messages.header(ego.stamp_ns, ego.frame_id), next_stamp=messages.stamp(ego.next_stamp_ns),
+        iteration=int(ego.iteration), motion=pose_msgs.transform_msg(ego.transform))
+
+
+def ego_motion_from_msg(msg: Any) -> EgoMotion:
+    """An ssf_interfaces/EgoMotion as an EgoMotion, checked (a finite rigid transform, scan t+1 after scan t)."""
+    stamp, next_stamp = messages.stamp_ns(msg.header.stamp), messages.stamp_ns(msg.next_stamp)
+    if next_stamp <= stamp:
+        raise MessageError(f"ego motion's next_stamp {next_stamp} is not after its stamp {stamp}")
+    q, t = msg.motion.rotation, msg.motion.translation
+    values = np.array([q.x, q.y, q.z, q.w, t.x, t.y, t.z], np.float64)
+    if not np.isfinite(values).all() or not 0.5 < np.linalg.norm(values[:4]) < 1.5:
+        raise MessageError("ego motion is not a finite rigid transform (NaN/Inf, or a quaternion far from unit length)")
+    return EgoMotion(stamp, next_stamp, msg.header.frame_id, pose_msgs.matrix_from_transform(msg.motion),
+                     int(msg.iteration))
+
+
+def prior_to_cloud(source: PriorSource) -> Any:
+    """/ssf/prior: x y z mask radius (points moved into the next scan's frame, their dynamic probability, and the
+    radius within which they count, constant per point)."""
+    return xyz_to_cloud(source.points, messages.header(source.stamp_ns, source.frame_id),
+                        mask=np.asarray(source.probability, np.float32),
+                        radius=np.full(len(source.points), source.radius, np.float32))
+
+
+def prior_from_cloud(msg: Any) -> PriorSource:
+    """A /ssf/prior cloud as a PriorSource (empty where the scan had no moving point)."""
+    if int(msg.width) * int(msg.height) == 0:
+        return PriorSource(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.zeros((0, 3), np.float32),
+                           np.zeros(0, np.float32), 0.0)
+    points, xyz = _finite_xyz(msg, "prior cloud")
+    _fields(points, ("mask", "radius"), "prior cloud")
+    radius = np.asarray(points["radius"], np.float64)
+    if not np.isfinite(radius).all() or (radius < 0).any():
+        raise MessageError("prior cloud radius must be finite and not negative")
+    return PriorSource(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz,
+                       _probabilities(points["mask"], "prior cloud mask"), float(radius[0]) if len(radius) else 0.0)
 
 
 def mask_to_cloud(mask: MotionMask) -> Any:
@@ -90,12 +136,14 @@ def mask_from_cloud(msg: Any, expected_points: int | None = None) -> MotionMask:
 
 
 def semantic_flow_to_cloud(result: SemanticFlow) -> Any:
-    """/ssf/semantic_flow: x y z flow_x flow_y flow_z label instance prob."""
+    """/ssf/semantic_flow: x y z flow_x flow_y flow_z label instance prob iteration (of the flow it answers with,
+    constant per point: its ego motion is the /ssf/ego_motion of that stamp and iteration)."""
     seg = result.segmentation
     return xyz_to_cloud(result.points, messages.header(result.stamp_ns, result.frame_id),
                         flow_x=result.flow[:, 0], flow_y=result.flow[:, 1], flow_z=result.flow[:, 2],
                         label=np.asarray(seg.label, dtype=np.uint8), instance=np.asarray(seg.instance, dtype=np.int32),
-                        prob=np.asarray(seg.dynamic_prob, dtype=np.float32))
+                        prob=np.asarray(seg.dynamic_prob, dtype=np.float32),
+                        iteration=np.full(len(result.points), result.iterations - 1, dtype=np.uint32))
 
 
 def semantic_flow_from_cloud(msg: Any) -> SemanticFlow:
@@ -108,7 +156,7 @@ def semantic_flow_from_cloud(msg: Any) -> SemanticFlow:
     segmentation = Segmentation(_probabilities(points["prob"], "semantic flow cloud prob"), label,
                                 np.asarray(points["instance"], dtype=np.int32))
     return SemanticFlow(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz,
-                        _flow_of(points, "semantic flow cloud"), segmentation)
+                        _flow_of(points, "semantic flow cloud"), segmentation, iterations=_iteration_of(points) + 1)
 
 
 def obstacles_to_msg(obstacles: Obstacles) -> Any:

@@ -36,6 +36,7 @@ PUBLISHED_TYPES = (
     "ssf_interfaces/msg/FusionState",
     "ssf_interfaces/msg/EpisodeResult",
     "ssf_interfaces/msg/PlannerState",
+    "ssf_interfaces/msg/EgoMotion",
 )
 
 

@@ -3,10 +3,12 @@ messages (`ssf_common.conversions`), and the evaluation compares with ground tru
 
 | record | topic |
 | --- | --- |
-| `SceneFlow` | `/ssf/flow` (x y z flow_x flow_y flow_z iteration) |
+| `EgoMotion` | `/ssf/ego_motion` (ssf_interfaces/EgoMotion: the flow estimator's ego motion of each pair) |
+| `SceneFlow` | `/ssf/flow` (x y z flow_x flow_y flow_z iteration prior) with its `/ssf/ego_motion` |
 | `Segmentation` | per point of a scan: label, instance, dynamic probability (part of `/ssf/semantic_flow`) |
 | `MotionMask` | `/ssf/mask`, `/ssf/mask_hint` (x y z mask instance iteration) |
-| `SemanticFlow` | `/ssf/semantic_flow` (x y z flow_x flow_y flow_z label instance prob) |
+| `SemanticFlow` | `/ssf/semantic_flow` (x y z flow_x flow_y flow_z label instance prob iteration) |
+| `PriorSource` | `/ssf/prior` (x y z mask: a scan's points near its moving objects, moved by their flow) |
 | `Obstacles` | `/ssf/obstacles`, `/sim/ground_truth/obstacles` (ssf_interfaces/ObstacleArray) |
 | `OdometryEstimate` | `/odom` (nav_msgs/Odometry) and the odom -> base_link transform on `/tf` |
 | `Plan` | `/ssf/plan` (nav_msgs/Path) |
@@ -39,6 +41,22 @@ class ObstacleKind(IntEnum):
 
 
 @dataclass(frozen=True)
+class EgoMotion:
+    """The sensor's motion over one scan pair, as the flow estimator aligned it: estimated once, used as given."""
+
+    stamp_ns: int  # scan t
+    next_stamp_ns: int  # scan t+1
+    frame_id: str
+    transform: np.ndarray  # (4, 4) float64: scan-t coordinates of static points -> scan t+1's sensor frame
+    iteration: int = 0  # the fusion iteration of the flow it came with
+
+    @property
+    def dt(self) -> float:
+        """Seconds between the two scans."""
+        return (self.next_stamp_ns - self.stamp_ns) * 1e-9
+
+
+@dataclass(frozen=True)
 class SceneFlow:
     """Flow of every point of scan t (its sensor frame): points + flow lies on the surfaces of scan t+1."""
 
@@ -46,7 +64,9 @@ class SceneFlow:
     frame_id: str
     points: np.ndarray  # (N, 3) float32
     flow: np.ndarray  # (N, 3) float32
-    iteration: int = 0  # the fusion iteration this flow answers (0: no mask yet)
+    iteration: int = 0  # the fusion iteration this flow answers
+    prior: np.ndarray | None = None  # (N,) float32: the dynamic probability M^(i) the flow was conditioned on (None: none)
+    ego: EgoMotion | None = None  # the ego motion found with it (None: not known)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -119,6 +139,7 @@ class SemanticFlow:
     segmentation: Segmentation
     iterations: int = 1  # flow/segmentation rounds it took
     converged: bool = True  # False when it stopped on N_iter or a timeout
+    ego: EgoMotion | None = None  # the flow estimator's ego motion of the flow it answers with (None: not known)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -127,6 +148,21 @@ class SemanticFlow:
     def static_points(self) -> np.ndarray:
         """(S, 3) points labelled static."""
         return self.points[~self.segmentation.dynamic]
+
+
+@dataclass(frozen=True)
+class PriorSource:
+    """What a scan's segmentation leaves for the next scan's temporal prior M^(0): its points near its moving objects,
+    moved by their flow into the next scan's frame, with their dynamic probability."""
+
+    stamp_ns: int  # the scan they came from
+    frame_id: str
+    points: np.ndarray  # (M, 3) float32, the next scan's sensor frame
+    probability: np.ndarray  # (M,) float32 in [0, 1]
+    radius: float = 1.0  # m: a point of the next scan takes the probability of the nearest of these within it
+
+    def __len__(self) -> int:
+        return len(self.points)
 
 
 def _column(values, count: int, shape: tuple[int, ...], dtype) -> np.ndarray:

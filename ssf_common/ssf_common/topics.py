@@ -2,8 +2,10 @@
 
 LIDAR_POINTS = "/lidar/points"
 FLOW = "/ssf/flow"
+EGO_MOTION = "/ssf/ego_motion"  # the flow estimator's ego motion of each /ssf/flow (ssf_interfaces/EgoMotion)
 MASK = "/ssf/mask"
 MASK_HINT = "/ssf/mask_hint"
+PRIOR = "/ssf/prior"  # a finished scan's points near its movers, moved by their flow: the next scan's prior
 SEMANTIC_FLOW = "/ssf/semantic_flow"
 OBSTACLES = "/ssf/obstacles"
 FUSION_STATE = "/ssf/fusion_state"

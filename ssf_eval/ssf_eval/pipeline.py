@@ -1,5 +1,10 @@
-"""SSF perception assembled from the stages' cores: the flow estimator and the segmenter promoting each other in the
-fusion loop, then obstacles. What `ssf seg estimate`, the evaluations and the navigation benchmark run in process."""
+"""SSF perception in process: the graph's per-scan chain, run by one driver in the order the nodes run it.
+
+For scan t and the scan t+1 after it: the temporal prior M^(0) that scan t-1 left (`/ssf/prior`), carried onto scan t
+(the flow node); scene flow with its ego motion (the flow node); segmentation with that ego motion as given (the
+segmentation node); the loop's decision (the fusion node, `fusion.max_iterations`); the scan's obstacles, moving and
+still (the fusion node); and what scan t leaves for scan t+1's prior (the fusion node). `ssf seg estimate`, the
+evaluations and the navigation benchmark run this; the nodes run the same core functions across processes."""
 
 from __future__ import annotations
 
@@ -9,10 +14,11 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
-from ssf_common.records import Obstacles
+from ssf_common.records import EgoMotion, Obstacles, PriorSource
+from ssf_common.temporal_prior import carry_prior, prior_source
 from ssf_flow_node.core.estimator import FlowConfig, make_estimator
-from ssf_seg_node.core.fusion import FusionConfig, FusionLoop, FusionResult, carry_mask
-from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles
+from ssf_seg_node.core.fusion import FusionConfig, FusionLoop, FusionResult
+from ssf_seg_node.core.obstacles import ObstacleConfig, SceneObstacles, scan_obstacles
 from ssf_seg_node.core.segmenter import SegConfig, make_segmenter
 
 
@@ -23,39 +29,53 @@ class PerceptionConfig(Section):
     seg: SegConfig = SegConfig()
     fusion: FusionConfig = FusionConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
-    dt: float = Field(0.1, gt=0.0, description="time between consecutive scans (s)")
+    dt: float = Field(0.1, gt=0.0, description="time between consecutive scans (s) where the scans carry no stamps")
 
 
 @dataclass(frozen=True)
-class Perception:
-    """What perception made of one scan pair: the loop's result and the obstacles (scan t's sensor frame)."""
+class ScanPerception:
+    """What perception made of one scan pair: the loop's result, its ego motion and the obstacles (scan t's frame)."""
 
     fusion: FusionResult
-    obstacles: Obstacles
+    ego: EgoMotion
+    found: SceneObstacles
+    prior: np.ndarray | None  # M^(0): the mask the loop started from
+
+    @property
+    def obstacles(self) -> Obstacles:
+        """Every obstacle, moving and still, as /ssf/obstacles carries them."""
+        return self.found.all()
 
 
-class SsfPerception:
-    """Flow ⇄ segmentation until they agree, then obstacles with velocity."""
+class PerceptionChain:
+    """Flow ⇄ segmentation until they agree, then obstacles with velocity; scan after scan."""
 
     def __init__(self, config: PerceptionConfig, device: str = "cpu") -> None:
         self.config = config
         self.loop = FusionLoop(make_estimator(config=config.flow, device=device),
                                make_segmenter(config=config.seg, device=device), config.fusion)
-        self.previous: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # points, flow, dynamic probability
+        self.source: PriorSource | None = None  # what the last scan left for the next one's prior
 
     def reset(self) -> None:
         """Forget the previous scan (a new sequence starts)."""
-        self.previous = None
+        self.source = None
 
     def perceive(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None, stamp_ns: int = 0,
-                 frame_id: str = "sensor", follows: bool = False) -> Perception:
-        """Flow, segmentation and obstacles of scan t (pc1) towards scan t+1 (pc2). follows: pc1 is the scan the
+                 frame_id: str = "sensor", follows: bool = False, next_stamp_ns: int | None = None) -> ScanPerception:
+        """Semantic scene flow and obstacles of scan t (pc1) towards scan t+1 (pc2). follows: pc1 is the scan the
         previous call's pc2 was, so that call's segmentation, carried by its flow, is the preliminary mask M^(0)
-        (unless a mask is given)."""
-        if mask is None and follows and self.previous is not None:
-            mask = carry_mask(*self.previous, pc1, self.config.fusion.prior_radius)
+        (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.dt."""
+        radius = self.config.fusion.prior_radius
+        # 1. the temporal prior: the previous scan's segmentation carried onto this one
+        if mask is None and follows and self.source is not None:
+            mask = carry_prior(self.source, pc1)
+        # 2. flow with its ego motion ⇄ segmentation, until they agree
         fusion = self.loop.run(pc1, pc2, mask)
-        self.previous = (np.asarray(pc1)[:, :3], fusion.flow, fusion.segmentation.dynamic_prob)
-        obstacles = extract_obstacles(pc1, fusion.flow, fusion.segmentation, fusion.ego, self.config.dt, stamp_ns,
-                                      frame_id, self.config.obstacles)
-        return Perception(fusion, obstacles)
+        dt = self.config.dt if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
+        ego = EgoMotion(stamp_ns, stamp_ns + int(round(dt * 1e9)), frame_id, fusion.ego, fusion.iterations - 1)
+        # 3. the obstacles: moving instances with their velocities, the still part as boxes
+        found = scan_obstacles(pc1, fusion.flow, fusion.segmentation, fusion.ego, ego.dt, stamp_ns, frame_id,
+                               self.config.obstacles)
+        # 4. what this scan leaves for the next one's prior
+        self.source = prior_source(stamp_ns, frame_id, pc1, fusion.flow, fusion.segmentation.dynamic_prob, radius)
+        return ScanPerception(fusion, ego, found, mask)

@@ -1,4 +1,5 @@
-"""ssf_flow_node: scene flow between consecutive scans on /lidar/points, re-estimated for each mask hint."""
+"""ssf_flow_node: scene flow between consecutive scans on /lidar/points, conditioned on the temporal prior the last
+scan left (/ssf/prior), re-estimated for each mask hint; the flow on /ssf/flow and its ego motion on /ssf/ego_motion."""
 
 from __future__ import annotations
 
@@ -11,15 +12,17 @@ import numpy as np
 
 from ssf_common import messages, topics
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
-from ssf_common.conversions import mask_from_cloud, scene_flow_to_cloud
+from ssf_common.conversions import ego_motion_to_msg, mask_from_cloud, prior_from_cloud, scene_flow_to_cloud
 from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
 from ssf_common.pointcloud import decode_cloud_or_none
-from ssf_common.records import SceneFlow
+from ssf_common.records import EgoMotion, PriorSource, SceneFlow
+from ssf_common.temporal_prior import carry_prior
 from ssf_common.worker import LatestWorker
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 
 SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
+PRIOR_HISTORY = 4  # temporal priors kept until the pair of the scan after theirs is estimated
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,7 @@ class FlowJob:
 
     scan: Scan
     next_scan: Scan
-    mask: np.ndarray | None
+    mask: np.ndarray | None  # a mask hint; None: the temporal prior, when the scan before left one
     iteration: int
 
 
@@ -51,9 +54,12 @@ class FlowNode(Node):
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.estimator = make_estimator(config=self.config, device=device)
         self.scans: collections.deque[Scan] = collections.deque(maxlen=SCAN_HISTORY)
+        self.priors: collections.OrderedDict[int, PriorSource] = collections.OrderedDict()  # by the stamp they came from
         self.gap_ns: int | None = None  # the shortest time between consecutive scans seen: the sweep period
+        self.ego_pub = self.create_publisher("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, QOS_DEFAULT)
         self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
         self.worker = LatestWorker(self._estimate, ("hint", "scan"), self.get_logger(), "flow")
+        self.create_subscription("sensor_msgs/msg/PointCloud2", topics.PRIOR, self.on_prior, QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, self.on_mask_hint, QOS_DEFAULT)
         self.create_timer(report_period, self._report)
@@ -71,6 +77,7 @@ class FlowNode(Node):
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
+            self.priors.clear()
         if self.scans and self._consecutive(self.scans[-1], scan):
             self.worker.submit("scan", FlowJob(self.scans[-1], scan, None, 0))
         self.scans.append(scan)
@@ -84,6 +91,29 @@ class FlowNode(Node):
             return True
         self.stats.count("pairs_skipped_after_a_lost_scan")
         return False
+
+    def on_prior(self, msg: Any) -> None:
+        """Keep what a finished scan left for the next scan's temporal prior."""
+        try:
+            source = prior_from_cloud(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.PRIOR}: {err}")
+            return
+        self.priors[source.stamp_ns] = source
+        while len(self.priors) > PRIOR_HISTORY:
+            self.priors.popitem(last=False)
+
+    def temporal_prior(self, scan: Scan) -> np.ndarray | None:
+        """M^(0) of a scan: the segmentation of the scan right before it, carried onto it (None: none has come)."""
+        scans = list(self.scans)  # the worker's snapshot of what the subscriptions append
+        before = next((earlier for earlier, later in zip(scans, scans[1:]) if later.stamp_ns == scan.stamp_ns), None)
+        if before is None or self.gap_ns is None or scan.stamp_ns - before.stamp_ns > 1.5 * self.gap_ns:
+            return None  # the first scan of a sequence, or one after a lost scan: nothing points onto it
+        source = self.priors.get(before.stamp_ns)
+        if source is None:
+            self.stats.count("pairs_without_their_prior")  # the scan before was not finished in time
+            return None
+        return carry_prior(source, scan.xyz)
 
     def on_mask_hint(self, msg: Any) -> None:
         """Re-estimate the flow of the scan the hint refers to, conditioned on its mask."""
@@ -108,11 +138,14 @@ class FlowNode(Node):
 
     def _estimate(self, _kind: str, job: FlowJob) -> None:
         start = time.perf_counter()
-        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, job.mask)
+        mask = self.temporal_prior(job.scan) if job.iteration == 0 else job.mask
+        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
         self.stats.record(self._compute_ms[-1], "estimates")
-        flow = SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz, result.flow, job.iteration)
-        self.flow_pub.publish(scene_flow_to_cloud(flow))
+        ego = EgoMotion(job.scan.stamp_ns, job.next_scan.stamp_ns, job.scan.frame_id, result.ego, job.iteration)
+        self.ego_pub.publish(ego_motion_to_msg(ego))  # first: it is small, and the flow's readers wait for it
+        self.flow_pub.publish(scene_flow_to_cloud(SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz,
+                                                            result.flow, job.iteration, mask, ego)))
 
     def _report(self) -> None:
         if not self._compute_ms:

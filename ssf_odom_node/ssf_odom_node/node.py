@@ -1,6 +1,7 @@
-"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) in, /cmd_vel as
-the motion prior across skipped scans, and optionally the vehicle's own measured motion (wheel speed, yaw rate);
-/odom, the odom -> base_link transform on /tf, /ssf/path and the static map on /ssf/map out."""
+"""ssf_odom_node: odometry from semantic scene flow. /ssf/semantic_flow (or /ssf/flow + /ssf/mask) with the flow's
+ego motion (/ssf/ego_motion) in, /cmd_vel as the motion prior across skipped scans, and optionally the vehicle's own
+measured motion (wheel speed, yaw rate); /odom, the odom -> base_link transform on /tf, /ssf/path and the static map
+on /ssf/map out."""
 
 from __future__ import annotations
 
@@ -16,14 +17,15 @@ from pydantic import Field
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import Section
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
-from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg, scene_flow_from_cloud,
-                                    semantic_flow_from_cloud)
+from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, odometry_to_msg, odometry_transform_msg,
+                                    scene_flow_from_cloud, semantic_flow_from_cloud)
 from ssf_common.errors import ConfigError, MessageError, SsfError
 from ssf_common.geometry.kinematics import commanded_motion, forward_speed, measured_motion
 from ssf_common.geometry.se3 import invert
+from ssf_common.matching import ExactMatcher
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
-from ssf_common.records import OdometryEstimate
+from ssf_common.records import EgoMotion, OdometryEstimate
 from ssf_common.stamps import StampSequence
 from ssf_common.worker import LatestWorker
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_odometry
@@ -110,6 +112,7 @@ class OdomNode(Node):
         self.path_pub = self.create_publisher("nav_msgs/msg/Path", topics.PATH, QOS_DEFAULT)
         self.map_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MAP, QOS_DEFAULT)
         self.worker = LatestWorker(self._step, ("scan",), self.get_logger(), "odom")
+        self.matcher: ExactMatcher[OdomInput, EgoMotion] = ExactMatcher(self._matched)
         self._compute_ms: list[float] = []
         self.stats = StageStats(self.get_name())
         advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
@@ -119,6 +122,7 @@ class OdomNode(Node):
         self._published_ns: int | None = None  # the stamp of the last /odom
         self.sequence = StampSequence()
         self.create_timer(self.wiring.map_period_s, self._publish_map)
+        self.create_timer(0.05, lambda: self.matcher.expire(time.monotonic()))
         self.create_timer(self.wiring.report_period_s, self._report)
         self.get_logger().info(f"method '{self.config.method.value}' from {self.wiring.input}")
         if self.wiring.mount_from_tf:
@@ -128,6 +132,7 @@ class OdomNode(Node):
         if self.wiring.twist_topic:
             self.create_subscription("geometry_msgs/msg/TwistStamped", self.wiring.twist_topic, self.on_twist,
                                      QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion, QOS_DEFAULT)
         if self.wiring.input == "semantic_flow":  # inputs last: the node is whole once they are matched
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, self.on_semantic_flow, QOS_DEFAULT)
         else:
@@ -143,7 +148,8 @@ class OdomNode(Node):
                                       "constant-velocity prediction")
             return
         self.sensor_frame = result.frame_id
-        self.worker.submit("scan", OdomInput(result.stamp_ns, result.points, result.flow, result.segmentation.dynamic_prob))
+        self.matcher.add_main((result.stamp_ns, result.iterations - 1), OdomInput(
+            result.stamp_ns, result.points, result.flow, result.segmentation.dynamic_prob), time.monotonic())
 
     def on_flow(self, msg: Any) -> None:
         """Keep a flow until the mask of its scan arrives."""
@@ -169,7 +175,23 @@ class OdomNode(Node):
             self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
             return
         self.sensor_frame = flow.frame_id
-        self.worker.submit("scan", OdomInput(flow.stamp_ns, flow.points, flow.flow, mask.dynamic_prob))
+        self.matcher.add_main((flow.stamp_ns, flow.iteration), OdomInput(flow.stamp_ns, flow.points, flow.flow,
+                                                                         mask.dynamic_prob), time.monotonic())
+
+    def on_ego_motion(self, msg: Any) -> None:
+        """Match the flow estimator's ego motion with the scan it belongs to."""
+        try:
+            ego = ego_motion_from_msg(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+            return
+        self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
+
+    def _matched(self, frame: OdomInput, ego: EgoMotion | None) -> None:
+        """Queue one scan with its ego motion (without one, the odometry fits it from the static flow: counted)."""
+        if ego is None:
+            self.stats.count("scans_without_ego_motion")
+        self.worker.submit("scan", frame if ego is None else dataclasses.replace(frame, ego=ego.transform))
 
     def on_command(self, msg: Any) -> None:
         """Remember a velocity command with the time it arrived (a Twist has no stamp)."""

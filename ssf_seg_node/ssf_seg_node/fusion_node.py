@@ -1,11 +1,13 @@
-"""ssf_fusion_node: the flow ⇄ segmentation loop across processes, and the obstacles of each converged scan.
+"""ssf_fusion_node: the flow ⇄ segmentation loop across processes, and the obstacles of each finished scan.
 
-/ssf/flow + /ssf/mask -> /ssf/mask_hint (next iteration) or, once converged: /ssf/semantic_flow and /ssf/obstacles
-(the moving instances with their velocities, and the still part of the scan as boxes standing still);
-/ssf/fusion_state every iteration."""
+/ssf/flow (with its /ssf/ego_motion) + /ssf/mask -> /ssf/mask_hint (next iteration) or, once converged:
+/ssf/semantic_flow, /ssf/obstacles (the moving instances with their velocities, and the still part of the scan as
+boxes standing still) and /ssf/prior (what the next scan's temporal prior is made of); /ssf/fusion_state every
+iteration."""
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any
 
@@ -13,15 +15,19 @@ from pydantic import Field
 
 from ssf_common import messages, topics
 from ssf_common.config import Section
-from ssf_common.conversions import mask_from_cloud, mask_to_cloud, obstacles_to_msg, scene_flow_from_cloud, semantic_flow_to_cloud
+from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, mask_to_cloud, obstacles_to_msg,
+                                    prior_to_cloud, scene_flow_from_cloud, semantic_flow_to_cloud)
 from ssf_common.diagnostics import StageStats, advertise
 from ssf_common.errors import MessageError
 from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.markers import MarkerSet
+from ssf_common.matching import ExactMatcher
 from ssf_common.middleware import QOS_DEFAULT, Node, run
+from ssf_common.records import EgoMotion, SceneFlow
 from ssf_common.stamps import StampSequence
+from ssf_common.temporal_prior import prior_source
 from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, LoopStatus
-from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles, stack, still_clusters
+from ssf_seg_node.core.obstacles import ObstacleConfig, scan_obstacles
 
 
 class FusionNodeConfig(Section):
@@ -30,7 +36,8 @@ class FusionNodeConfig(Section):
     fusion: FusionConfig = FusionConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
     timeout_s: float = Field(0.5, gt=0.0, description="a scan whose loop waits longer is finished with its best answer")
-    dt: float = Field(0.1, gt=0.0, description="seconds between scans until the stamps tell")
+    dt: float = Field(0.1, gt=0.0, description="seconds between scans where a flow comes without its ego motion (the "
+                      "ego motion's stamps tell otherwise)")
 
 
 class FusionNode(Node):
@@ -43,10 +50,10 @@ class FusionNode(Node):
         self.loop = DistributedLoop(self.config.fusion, self.config.timeout_s)
         self.stats = StageStats(self.get_name())
         advertise(self, self.stats, refresh=self._refresh)
-        self.dt = self.config.dt
-        self.last_flow_stamp: int | None = None
         self.sequence = StampSequence()
+        self.matcher: ExactMatcher[SceneFlow, EgoMotion] = ExactMatcher(self._matched)
         self.hint_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, QOS_DEFAULT)
+        self.prior_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.PRIOR, QOS_DEFAULT)
         self.result_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, QOS_DEFAULT)
         self.obstacle_pub = self.create_publisher("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, QOS_DEFAULT)
         self.state_pub = self.create_publisher("ssf_interfaces/msg/FusionState", topics.FUSION_STATE, QOS_DEFAULT)
@@ -54,11 +61,12 @@ class FusionNode(Node):
             "visualization_msgs/msg/MarkerArray", topics.SSF_MARKERS, QOS_DEFAULT)
         self.create_timer(0.05, self.on_timer)
         self.create_timer(report_period, self._report)
+        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion, QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK, self.on_mask, QOS_DEFAULT)
 
     def on_flow(self, msg: Any) -> None:
-        """Remember S^(i) of the scan in progress."""
+        """Match S^(i) of the scan in progress with its ego motion."""
         try:
             flow = scene_flow_from_cloud(msg)
         except MessageError as err:
@@ -67,12 +75,21 @@ class FusionNode(Node):
         if self.sequence.restarted(flow.stamp_ns):
             self.get_logger().info("flow stamps jumped back: the stream restarted, a new sequence begins")
             self.loop.restart()
-            self.last_flow_stamp = None
-        if flow.iteration == 0:
-            if self.last_flow_stamp is not None and flow.stamp_ns > self.last_flow_stamp:
-                self.dt = (flow.stamp_ns - self.last_flow_stamp) * 1e-9
-            self.last_flow_stamp = flow.stamp_ns
-        for finish in self.loop.on_flow(flow, time.monotonic()):
+            self.matcher.clear()
+        self.matcher.add_main((flow.stamp_ns, flow.iteration), flow, time.monotonic())
+
+    def on_ego_motion(self, msg: Any) -> None:
+        """Match an ego motion with its flow."""
+        try:
+            ego = ego_motion_from_msg(msg)
+        except MessageError as err:
+            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+            return
+        self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
+
+    def _matched(self, flow: SceneFlow, ego: EgoMotion | None) -> None:
+        """Remember S^(i) with its ego motion."""
+        for finish in self.loop.on_flow(dataclasses.replace(flow, ego=ego), time.monotonic()):
             self._publish_result(finish)
 
     def on_mask(self, msg: Any) -> None:
@@ -93,23 +110,28 @@ class FusionNode(Node):
             self.stats.record((time.perf_counter() - started) * 1e3, "iterations")
 
     def on_timer(self) -> None:
-        """Finish a scan that has waited too long."""
-        for finish in self.loop.on_timer(time.monotonic()):
+        """Match or give up on what waited too long; finish a scan that has waited too long."""
+        now = time.monotonic()
+        self.matcher.expire(now)
+        for finish in self.loop.on_timer(now):
             self._publish_result(finish)
 
     def _publish_result(self, finish: Finish) -> None:
         result = finish.result
         self._publish_state(finish.status)
+        if result.ego is None:  # a flow whose ego motion never came (not from our flow node): fitted here, counted
+            self.stats.count("results_without_ego_motion")
+            ego = weighted_kabsch(result.points, result.points + result.flow, 1.0 - result.segmentation.dynamic_prob)
+            dt = self.config.dt
+        else:
+            ego, dt = result.ego.transform, result.ego.dt
+        obstacles = scan_obstacles(result.points, result.flow, result.segmentation, ego, dt, result.stamp_ns,
+                                   result.frame_id, self.config.obstacles).all()
+        self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # before the odometry's input: the planner ticks on /odom
         self.result_pub.publish(semantic_flow_to_cloud(result))
-        static = 1.0 - result.segmentation.dynamic_prob
-        ego = weighted_kabsch(result.points, result.points + result.flow, static)
-        obstacles = extract_obstacles(result.points, result.flow, result.segmentation, ego, self.dt, result.stamp_ns,
-                                      result.frame_id, self.config.obstacles)
-        if self.config.obstacles.still.enabled:  # what stands still is in the way too: parked cars, structure
-            still = result.points[~result.segmentation.dynamic]
-            obstacles = stack(obstacles, still_clusters(still, result.stamp_ns, result.frame_id,
-                                                        self.config.obstacles.still).boxes)
-        self.obstacle_pub.publish(obstacles_to_msg(obstacles))
+        radius = self.config.fusion.prior_radius  # last: the flow node needs it only when the next scan comes
+        self.prior_pub.publish(prior_to_cloud(prior_source(result.stamp_ns, result.frame_id, result.points,
+                                                           result.flow, result.segmentation.dynamic_prob, radius)))
         if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
             self.marker_pub.publish(self.markers.obstacles(obstacles))
 

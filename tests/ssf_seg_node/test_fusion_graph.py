@@ -30,7 +30,7 @@ def test_distributed_loop_continues_then_converges_and_times_out():
     assert loop.on_flow(SceneFlow(5, "lidar", points, flow, 0), 0.0) == []
     first = loop.on_mask(MotionMask(5, "lidar", points, prob, instance, 0), 0.1)
     assert isinstance(first, Continue) and first.hint.iteration == 1 and np.isinf(first.status.delta_flow)
-    loop.on_flow(SceneFlow(5, "lidar", points, flow, 1), 0.2)
+    loop.on_flow(SceneFlow(5, "lidar", points, flow, 1, first.hint.dynamic_prob), 0.2)  # conditioned on the hint
     done = loop.on_mask(MotionMask(5, "lidar", points, prob, instance, 1), 0.3)
     assert isinstance(done, Finish) and done.reason == "converged" and done.status.delta_total == 0.0
     assert done.result.iterations == 2 and done.result.segmentation.num_instances == 1

@@ -5,8 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ssf_common.conversions import prior_from_cloud, prior_to_cloud
 from ssf_common.records import MotionMask, SceneFlow
-from ssf_eval.pipeline import PerceptionConfig, SsfPerception
+from ssf_common.temporal_prior import carry_prior, prior_source
+from ssf_eval.pipeline import PerceptionConfig, PerceptionChain
 from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, carry_mask
 
@@ -22,25 +24,38 @@ def test_carry_mask_moves_the_probabilities_with_the_flow():
     assert not carry_mask(points, flow, probability, following, radius=0.0).any()
 
 
-def test_the_distributed_loop_adds_the_prior_to_the_first_hint_of_the_next_scan():
+def test_the_prior_crosses_processes_in_two_halves_with_the_same_answer():
+    """What the fusion node keeps of a finished scan (/ssf/prior), carried by the flow node onto the next scan, is the
+    prior the in-process chain carries: only the points near the movers travel."""
+    rng = np.random.default_rng(3)
+    points = rng.uniform(-20, 20, (2000, 3)).astype(np.float32)
+    flow = np.zeros_like(points)
+    probability = np.zeros(len(points), np.float32)
+    near = np.linalg.norm(points[:, :2] - [5.0, 5.0], axis=1) < 1.5
+    probability[near], flow[near] = 0.8, [1.0, 0.0, 0.0]
+    following = (points + flow + rng.normal(0, 0.02, points.shape)).astype(np.float32)
+    source = prior_source(7, "lidar", points, flow, probability, radius=1.0)
+    assert 0 < len(source) < len(points) and source.radius == 1.0
+    travelled = prior_from_cloud(prior_to_cloud(source))  # over the wire and back
+    np.testing.assert_array_equal(carry_prior(travelled, following), carry_mask(points, flow, probability, following, 1.0))
+    assert (carry_prior(travelled, following)[near] == np.float32(0.8)).all()
+
+
+def test_the_distributed_loop_hints_the_segmentation_and_compares_it_with_the_flow_s_mask():
+    """As in process: the next iteration's mask is the segmentation, and Delta_mask compares it with the mask M^(i)
+    the flow was conditioned on (the /ssf/flow prior field)."""
     loop = DistributedLoop(FusionConfig(max_iterations=3), timeout_s=5.0)
     points = np.array([[0.0, 0, 0], [4.0, 0, 0], [8.0, 0, 0]], np.float32)
-    moving = np.array([0.0, 0.9, 0.0], np.float32)
+    prior = np.array([0.0, 0.9, 0.0], np.float32)  # the temporal prior the flow started from
     flow = np.zeros((3, 3), np.float32)
-    for iteration in range(2):  # scan 1: the middle point moves, twice the same answer
-        loop.on_flow(SceneFlow(100, "lidar", points, flow, iteration), 0.0)
-        decision = loop.on_mask(MotionMask(100, "lidar", points, moving, (moving > 0.5).astype(np.int32), iteration), 0.0)
-    assert isinstance(decision, Finish) and decision.reason == "converged"
-    nothing = np.zeros(3, np.float32)
-    loop.on_flow(SceneFlow(200, "lidar", points, flow, 0), 1.0)  # scan 2 follows; its first segmentation misses the mover
+    loop.on_flow(SceneFlow(200, "lidar", points, flow, 0, prior), 1.0)
+    nothing = np.zeros(3, np.float32)  # its segmentation misses the mover
     hint = loop.on_mask(MotionMask(200, "lidar", points, nothing, np.zeros(3, np.int32), 0), 1.0)
-    assert isinstance(hint, Continue) and hint.hint.dynamic_prob.tolist() == [0.0, np.float32(0.9), 0.0]
-    assert hint.status.delta_mask == 0.0  # the loop compares segmentations, not hints
-    loop.on_flow(SceneFlow(200, "lidar", points, flow, 1), 1.1)
-    loop.on_mask(MotionMask(200, "lidar", points, nothing, np.zeros(3, np.int32), 1), 1.1)
-    loop.on_flow(SceneFlow(500, "lidar", points, flow, 0), 2.0)  # scans were skipped: its flow points elsewhere
-    hint = loop.on_mask(MotionMask(500, "lidar", points, nothing, np.zeros(3, np.int32), 0), 2.0)
     assert isinstance(hint, Continue) and not hint.hint.dynamic_prob.any()
+    assert hint.status.delta_mask == pytest.approx(0.3)  # |0 - 0.9| / 3
+    loop.on_flow(SceneFlow(200, "lidar", points, flow, 1, hint.hint.dynamic_prob), 1.1)
+    done = loop.on_mask(MotionMask(200, "lidar", points, nothing, np.zeros(3, np.int32), 1), 1.1)
+    assert isinstance(done, Finish) and done.reason == "converged"
 
 
 def test_a_restarted_stream_is_not_taken_for_late_answers():
@@ -86,7 +101,7 @@ class Recorder:
 
 def test_consecutive_scans_start_from_the_carried_segmentation():
     first = synthetic_pair(seed=6, agents=4, points=4096)
-    perception = SsfPerception(PerceptionConfig())
+    perception = PerceptionChain(PerceptionConfig())
     recorder = perception.loop.estimator = Recorder(perception.loop.estimator)
     result = perception.perceive(first.pc1, first.pc2)
     assert recorder.masks[0] is None and result.fusion.segmentation.dynamic.any()

@@ -170,5 +170,5 @@ def make_perception(name: str, **settings) -> Perception:
     if name == "ssf":
         from ssf_eval.nav.ssf_source import SsfPerception
 
-        return SsfPerception(settings.get("ssf"), settings.get("dbscan"), scans=settings.get("scans"))
+        return SsfPerception(settings.get("ssf"), scans=settings.get("scans"))
     raise ConfigError(f"unknown perception '{name}'; choose one of gt, dbscan, dbscan0, ssf (or follower)")

@@ -1,8 +1,7 @@
-"""The `ssf` perception source and the `ssf` pose source of the navigation loop, on one run of the SSF pipeline per
-scan: semantic scene flow (flow <-> segmentation loop) from the previous whole scan towards this one. Perception
-makes an obstacle of every moving instance (its velocity from the flow) and clusters the static part into still
-boxes (as `dbscan` clusters a whole scan); the pose comes from the SSF odometry core, as the graph's odometry node
-gives it."""
+"""The `ssf` perception source and the `ssf` pose source of the navigation loop, on one run of the SSF chain per
+scan (`ssf_eval.pipeline`, what the graph's nodes run): semantic scene flow from the previous whole scan towards this
+one, its obstacles (every moving instance with its velocity, the still part clustered into still boxes) and the pose
+from the SSF odometry core with the flow's ego motion, as the graph's odometry node gives it."""
 
 from __future__ import annotations
 
@@ -15,10 +14,9 @@ from ssf_common.config import build
 from ssf_common.geometry.kinematics import commanded_motion, forward_speed
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
-from ssf_eval.nav.perception import ODOM_FRAME, DbscanConfig, Observation, cluster_boxes
-from ssf_eval.pipeline import Perception, PerceptionConfig, SsfPerception as Pipeline
+from ssf_eval.nav.perception import ODOM_FRAME, Observation
+from ssf_eval.pipeline import PerceptionChain, PerceptionConfig, ScanPerception
 from ssf_flow_node.core.estimator import WHOLE_SCAN
-from ssf_seg_node.core.obstacles import stack
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
 
 
@@ -34,7 +32,7 @@ class PerceivedPair(NamedTuple):
 
     stamp_ns: int
     points: np.ndarray  # (N, 3) the previous scan, sensor frame
-    seen: Perception
+    seen: ScanPerception
 
 
 class ConsecutiveScans:
@@ -42,7 +40,7 @@ class ConsecutiveScans:
     every n-th scan (the previous scan towards it), as a busy graph answers the newest pair and drops the others."""
 
     def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu", every: int = 1) -> None:
-        self.pipeline = Pipeline(config or whole_scan_config(), device)
+        self.pipeline = PerceptionChain(config or whole_scan_config(), device)
         self.every = every
         self._added = 0  # scans added so far
         self._newest: tuple[int, np.ndarray] | None = None
@@ -63,22 +61,22 @@ class ConsecutiveScans:
         if previous is None or index % self.every:  # the first scan, or one a busy graph drops
             self._pair = None
             return None
-        seen = self.pipeline.perceive(previous[1], self._newest[1], stamp_ns=previous[0], frame_id="lidar", follows=True)
+        seen = self.pipeline.perceive(previous[1], self._newest[1], stamp_ns=previous[0], frame_id="lidar", follows=True,
+                                      next_stamp_ns=stamp_ns)
         self.iterations.append(seen.fusion.iterations)
         self._pair = PerceivedPair(previous[0], previous[1], seen)
         return self._pair
 
 
 class SsfPerception:
-    """Semantic scene flow between the previous scan and this one; its moving instances become obstacles."""
+    """Semantic scene flow between the previous scan and this one; its obstacles, moving and still."""
 
     name = "ssf"
     reads_scan = True
 
-    def __init__(self, config: PerceptionConfig | None = None, clusters: DbscanConfig | None = None,
-                 device: str = "cpu", scans: ConsecutiveScans | None = None) -> None:
+    def __init__(self, config: PerceptionConfig | None = None, device: str = "cpu",
+                 scans: ConsecutiveScans | None = None) -> None:
         self.scans = scans or ConsecutiveScans(config, device)
-        self.clusters = clusters or DbscanConfig()
         self._previous_pose: np.ndarray | None = None  # odom <- lidar of the previous scan
 
     @property
@@ -93,10 +91,7 @@ class SsfPerception:
         pose1, self._previous_pose = self._previous_pose, observation.lidar_pose
         if pair is None or pose1 is None:
             return Obstacles.empty(frame.stamp_ns, ODOM_FRAME)
-        moving = pair.seen.obstacles.transformed(pose1, ODOM_FRAME)
-        still = cluster_boxes(pair.points[~pair.seen.fusion.segmentation.dynamic], pose1, pair.stamp_ns,
-                              self.clusters).boxes
-        return stack(moving, still)
+        return pair.seen.obstacles.transformed(pose1, ODOM_FRAME)
 
 
 class SsfPose:
@@ -129,7 +124,7 @@ class SsfPose:
             prior = commanded_motion([(stamp, command.linear, command.angular) for stamp, command in commands],
                                      self.odometry.stamp_ns, pair.stamp_ns, self.speed, *self.limits, self.mount)
         step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob,
-                                            prior))
+                                            prior, ego=fusion.ego))
         ahead = np.eye(4) if step.next_motion is None else invert(step.next_motion)
         self.motion = ahead
         self.lidar_pose = self.mount @ step.pose @ ahead

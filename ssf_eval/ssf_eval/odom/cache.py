@@ -71,6 +71,8 @@ class CachedPerception:
         arrays = {"flow": perceived.flow, "dynamic_prob": perceived.dynamic_prob, "ms": np.float64(perceived.ms)}
         if perceived.flow_plain is not None:
             arrays["flow_plain"] = perceived.flow_plain
+        if perceived.ego is not None:
+            arrays["ego"] = perceived.ego
         partial = path.with_suffix(".part.npz")
         np.savez(partial, **arrays)
         partial.replace(path)  # whole files only: a killed drive leaves no half-written scan
@@ -82,6 +84,7 @@ class CachedPerception:
             with np.load(path) as stored:
                 flow, dynamic = stored["flow"], stored["dynamic_prob"]
                 plain = stored["flow_plain"] if "flow_plain" in stored else None
+                ego = stored["ego"] if "ego" in stored else None  # folders written before the ego was kept: refitted
                 ms = float(stored["ms"])
         except (OSError, ValueError, KeyError) as error:
             print(f"perception cache {path}: unreadable ({error}); computing it again", file=sys.stderr)
@@ -92,4 +95,4 @@ class CachedPerception:
             print(f"perception cache {path}: does not fit this scan of {points} points; computing it again",
                   file=sys.stderr)
             return None
-        return Perceived(plain, flow, dynamic, ms)
+        return Perceived(plain, flow, dynamic, ms, ego)

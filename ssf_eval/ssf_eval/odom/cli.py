@@ -136,11 +136,11 @@ def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: 
     flow without a mask is wanted too (the 'flow' method)."""
     from ssf_common.config import build
     from ssf_eval.odom.evaluate import MaskSource, Perception
-    from ssf_eval.pipeline import PerceptionConfig, SsfPerception
+    from ssf_eval.pipeline import PerceptionConfig, PerceptionChain
     from ssf_flow_node.core.estimator import WHOLE_SCAN, make_estimator
 
     config = build(PerceptionConfig, {"flow": WHOLE_SCAN}, overrides or {}, source="-p perception.*")
-    pipeline = SsfPerception(config)
+    pipeline = PerceptionChain(config)
     segmented = masks == "seg"
     estimator = pipeline.loop.estimator
     maskless = None
@@ -334,9 +334,10 @@ def run_bench(args: argparse.Namespace) -> int:
         truths.append(scan.pose)
         inputs.append({"points": OdomInput(scan.stamp_ns, scan.points),
                        "flow": OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain),
-                       "ssf": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob),
+                       "ssf": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob,
+                                        ego=perceived.ego),
                        "ssf+twist": OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob,
-                                              measured_motion=scan.measured_motion)})
+                                              measured_motion=scan.measured_motion, ego=perceived.ego)})
     figures = {}
     for name in args.methods:
         spent = []

@@ -43,6 +43,7 @@ class Perceived:
     flow: np.ndarray  # flow with the static mask (ssf)
     dynamic_prob: np.ndarray  # (N,) probability that each point moves
     ms: float
+    ego: np.ndarray | None = None  # (4, 4) the flow estimator's ego motion of the masked flow (None: not known)
 
 
 class Perception:
@@ -54,7 +55,7 @@ class Perception:
     def __init__(self, masks: MaskSource, estimator, pipeline=None, seed: int = 0, plain=None) -> None:
         self.masks = MaskSource(masks)
         self.estimator = estimator
-        self.pipeline = pipeline  # ssf_eval.pipeline.SsfPerception, for masks from the segmentation
+        self.pipeline = pipeline  # ssf_eval.pipeline.PerceptionChain, for masks from the segmentation
         self.plain = plain  # estimator of the maskless flow; None: the 'flow' variant is not asked for
         self.rng = np.random.default_rng(seed)
 
@@ -69,7 +70,8 @@ class Perception:
         plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points).flow
         if self.masks is MaskSource.SEG:
             result = self.pipeline.perceive(scan.points, scan.next_points, follows=True).fusion  # consecutive scans
-            return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3)
+            return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3,
+                             result.ego)
         if self.masks is MaskSource.GT:
             mask = scan.dynamic.astype(np.float32)
         elif self.masks is MaskSource.AGENTS:
@@ -77,8 +79,8 @@ class Perception:
         else:
             pair = make_pair(scan.points, scan.next_points, np.zeros_like(scan.points), scan.dynamic, scan.instance)
             mask = noisy_mask(pair, self.rng)
-        masked = self.estimator.estimate(scan.points, scan.next_points, mask).flow  # last: the stream carries its motions
-        return Perceived(plain, masked, mask, (time.perf_counter() - started) * 1e3)
+        masked = self.estimator.estimate(scan.points, scan.next_points, mask)  # last: the stream carries its motions
+        return Perceived(plain, masked.flow, mask, (time.perf_counter() - started) * 1e3, masked.ego)
 
 
 class KissIcpBaseline:
@@ -190,10 +192,10 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perce
             if perceived is not None and name == "flow":
                 frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain)
             elif perceived is not None and name == "ssf":
-                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob)
+                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob, ego=perceived.ego)
             elif perceived is not None and name == SSF_TWIST:
                 frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob,
-                                  measured_motion=scan.measured_motion)
+                                  measured_motion=scan.measured_motion, ego=perceived.ego)
             started = time.perf_counter()
             step = odometry.step(frame)
             result.runs[name].ms.append((time.perf_counter() - started) * 1e3)

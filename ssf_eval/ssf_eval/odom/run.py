@@ -97,9 +97,9 @@ class Perceiver:
 
             self.estimator = make_estimator(config=config.flow, device=device)
         elif self.method is OdomMethod.SSF:
-            from ssf_eval.pipeline import SsfPerception
+            from ssf_eval.pipeline import PerceptionChain
 
-            self.perception = SsfPerception(config, device)
+            self.perception = PerceptionChain(config, device)
 
     def __call__(self, stamp_ns: int, pc1: np.ndarray, pc2: np.ndarray | None) -> OdomInput:
         """Scan t with its flow towards scan t+1 (and segmentation for ssf); the last scan has neither."""
@@ -108,7 +108,7 @@ class Perceiver:
         if self.estimator is not None:
             return OdomInput(stamp_ns, pc1, self.estimator.estimate(pc1, pc2).flow)
         fusion = self.perception.perceive(pc1, pc2, follows=True).fusion  # consecutive scans: the last mask carried
-        return OdomInput(stamp_ns, pc1, fusion.flow, fusion.segmentation.dynamic_prob)
+        return OdomInput(stamp_ns, pc1, fusion.flow, fusion.segmentation.dynamic_prob, ego=fusion.ego)
 
 
 def run_odometry(source: ScanSource, odometry: Odometry, perceive: Perceiver,

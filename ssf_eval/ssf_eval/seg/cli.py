@@ -142,7 +142,7 @@ def run_estimate(args: argparse.Namespace) -> int:
 
     from ssf_common.paths import check_writable, save_npy
     from ssf_common.scans import read_scan
-    from ssf_eval.pipeline import SsfPerception
+    from ssf_eval.pipeline import PerceptionChain
     from ssf_eval.results import write_result
 
     check_writable(args.out, "segmentation file")
@@ -150,13 +150,13 @@ def run_estimate(args: argparse.Namespace) -> int:
         check_writable(args.obstacles, "obstacle file")
     config = perception_config(args, **{"seg.method": args.method, "flow.estimator": args.flow_estimator,
                                         "fusion.max_iterations": args.iterations, "dt": args.dt})
-    perception = SsfPerception(config, args.device)
+    perception = PerceptionChain(config, args.device)
     pc1, pc2 = read_scan(args.pc1), read_scan(args.pc2)
     result = perception.perceive(pc1[:, :3], pc2[:, :3], frame_id="sensor")
     seg = result.fusion.segmentation
     columns = np.column_stack([seg.dynamic_prob, seg.label, seg.instance, result.fusion.flow]).astype(np.float32)
     save_npy(args.out, columns)
-    obstacles = result.obstacles
+    obstacles = result.found.moving
     if args.obstacles:
         items = [{"id": int(obstacles.ids[i]), "kind": int(obstacles.kinds[i]), "centre": obstacles.centres[i],
                   "size": obstacles.sizes[i], "yaw": float(obstacles.yaws[i]), "velocity": obstacles.velocities[i],
@@ -207,7 +207,7 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     import torch
 
     from ssf_common.paths import check_writable
-    from ssf_eval.pipeline import SsfPerception
+    from ssf_eval.pipeline import PerceptionChain
     from ssf_eval.results import write_result
     from ssf_eval.seg.evaluate import FlowInput, evaluate_segmentation, format_seg_table
     from ssf_eval.sources import source_scenario
@@ -218,7 +218,7 @@ def run_eval_seg(args: argparse.Namespace) -> int:
     torch.set_num_threads(args.threads)
     config = perception_config(args, source_scenario(args))
     methods = build_methods(args, config)
-    perception = SsfPerception(config, args.device) if any(m.segmenter is None for m in methods) else None
+    perception = PerceptionChain(config, args.device) if any(m.segmenter is None for m in methods) else None
     source, starts = sequences_from_args(args)
     estimator = make_estimator(config=config.flow, device=args.device)
 
@@ -249,7 +249,7 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
     import torch
 
     from ssf_common.paths import check_writable
-    from ssf_eval.pipeline import SsfPerception
+    from ssf_eval.pipeline import PerceptionChain
     from ssf_eval.results import write_result
     from ssf_eval.seg.evaluate import evaluate_iterations, format_iteration_table, plot_iterations
     from ssf_eval.sources import source_scenario
@@ -259,7 +259,7 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
             check_writable(path, what)
     torch.set_num_threads(args.threads)
     config = perception_config(args, source_scenario(args), **{"fusion.max_iterations": args.iterations})
-    perception = SsfPerception(config, args.device)
+    perception = PerceptionChain(config, args.device)
     source, starts = sequences_from_args(args)
     rows, taken = evaluate_iterations(perception, source.pairs, progress=lambda done: print(
         f"  pair {done}/{len(source.pairs)}", file=sys.stderr, flush=True), sequence_starts=starts)
@@ -334,13 +334,13 @@ def run_bench_fusion(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
-    from ssf_eval.pipeline import SsfPerception
+    from ssf_eval.pipeline import PerceptionChain
     from ssf_eval.results import write_result
 
     torch.set_num_threads(args.threads)
     config = perception_config(args)
     pairs = bench_pairs(args)
-    perception = SsfPerception(config, args.device)
+    perception = PerceptionChain(config, args.device)
     perception.perceive(pairs[0].pc1, pairs[0].pc2)  # warm-up
     spent, per_iteration, iterations = [], [], []
     for frame in range(args.frames):

@@ -10,7 +10,7 @@ import numpy as np
 
 from ssf_common.dataset.pairs import ScanPair
 from ssf_eval.flow.metrics import score_flow
-from ssf_eval.pipeline import PerceptionConfig, SsfPerception
+from ssf_eval.pipeline import PerceptionConfig, PerceptionChain
 from ssf_eval.seg.metrics import ObstacleErrors, SegCounts, SegScores, obstacle_errors, pool, seg_counts, seg_scores
 from ssf_seg_node.core.base import Segmenter
 from ssf_seg_node.core.obstacles import extract_obstacles
@@ -45,7 +45,7 @@ class MethodScores(NamedTuple):
 
 
 def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], flow_of: Callable[[ScanPair], FlowInput],
-                          perception: SsfPerception | None, config: PerceptionConfig,
+                          perception: PerceptionChain | None, config: PerceptionConfig,
                           progress: Callable[[int], None] | None = None,
                           sequence_starts: Collection[int] = (0,)) -> list[MethodScores]:
     """Every method on every pair: segmenters on the pair's given flow, the loop (SSF) on the scans themselves (pairs
@@ -62,7 +62,7 @@ def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], 
             if method.segmenter is None:
                 assert perception is not None
                 result = perception.perceive(pair.pc1, pair.pc2, follows=index not in sequence_starts)
-                segmentation, obstacles, rounds = result.fusion.segmentation, result.obstacles, result.fusion.iterations
+                segmentation, obstacles, rounds = result.fusion.segmentation, result.found.moving, result.fusion.iterations
                 times[method.label].append((time.perf_counter() - started) * 1e3)
             else:
                 given = given or flow_of(pair)
@@ -109,7 +109,7 @@ class IterationScores(NamedTuple):
     delta_total_median: float
 
 
-def evaluate_iterations(perception: SsfPerception, pairs: Iterable[ScanPair],
+def evaluate_iterations(perception: PerceptionChain, pairs: Iterable[ScanPair],
                         progress: Callable[[int], None] | None = None,
                         sequence_starts: Collection[int] = (0,)) -> tuple[list[IterationScores], list[int]]:
     """Flow EPE and segmentation IoU after every iteration of the loop (with the temporal prior of the consecutive

@@ -11,7 +11,7 @@ import numpy as np
 from ssf_common.dataset.pairs import ScanPair
 from ssf_eval.flow.evaluate import MaskSource, mask_for
 from ssf_eval.flow.metrics import FlowScores, pool_scores, score_flow
-from ssf_eval.pipeline import PerceptionConfig, SsfPerception
+from ssf_eval.pipeline import PerceptionConfig, PerceptionChain
 from ssf_eval.seg.metrics import SegCounts, SegScores, pool, seg_counts, seg_scores
 from ssf_flow_node.core.estimator import make_estimator
 from ssf_seg_node.core.segmenter import make_segmenter
@@ -89,7 +89,7 @@ class SensorEvaluator:
         self.rigid = make_estimator("rigid", config.flow, device)
         self.ego = make_estimator("ego", config.flow, device)
         self.segmenter = make_segmenter(config=config.seg, device=device)
-        self.perception = SsfPerception(config, device)
+        self.perception = PerceptionChain(config, device)
 
     def run(self, pairs: Iterable[ScanPair], seed: int, progress: Callable[[int], None] | None = None) -> Parts:
         """Every stage on every pair of one sequence of consecutive pairs (masks drawn from the seed, as `ssf eval

@@ -103,6 +103,8 @@ class OdomInput:
     # between drove the vehicle; None when unknown
     measured_motion: np.ndarray | None = None  # (4, 4) the same, as the vehicle's own sensors (wheel speed, yaw-rate
     # gyro) measured it; None when it has none
+    ego: np.ndarray | None = None  # (4, 4) this scan -> the next, as the flow estimator aligned it (scan-t coordinates
+    # of static points -> the next scan's frame); ssf takes it as the motion to the next scan instead of fitting one
 
 
 @dataclass(frozen=True)
@@ -153,8 +155,8 @@ class Odometry:
                                         self.prior_pose(frame), self.prior_pose(frame, measured=True))
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
-        # 5. the motion to the next scan from the static points and their flow (weighted Kabsch)
-        self.next_motion = self.flow_motion(points, flow, dynamic)
+        # 5. the motion to the next scan: the flow estimator's ego motion (else from the static points and their flow)
+        self.next_motion = self.flow_motion(points, flow, dynamic, self.given_ego(frame))
         # 6. the registered points join the map at the new pose (for ssf: where the segmentation sees, points that do
         # not move on their own, not where it saw moving points lately, and the scan's beams clear what they pass
         # through; static points farther out join only the registration target, for a few scans)
@@ -483,11 +485,24 @@ class Odometry:
         self.stamp_ns = stamp_ns if self.stamp_ns is None or stamp_ns > self.stamp_ns else self.stamp_ns + int(
             self.config.scan_period * 1e9)
 
-    def flow_motion(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None) -> np.ndarray | None:
-        """Scan t -> t+1 from the flow: Kabsch on the static points weighted by their static probability (ssf), or on
-        every point (flow); None without flow or for the points method."""
+    def given_ego(self, frame: OdomInput) -> np.ndarray | None:
+        """The flow estimator's ego motion of this scan, when given (a finite 4x4 transform)."""
+        if frame.ego is None:
+            return None
+        ego = np.asarray(frame.ego, dtype=np.float64)
+        if ego.shape != (4, 4) or not np.isfinite(ego).all():
+            raise DataError(f"odometry: the ego motion must be a finite 4x4 transform, got shape {ego.shape}")
+        return ego
+
+    def flow_motion(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None,
+                    ego: np.ndarray | None = None) -> np.ndarray | None:
+        """Scan t -> t+1 from the flow: for ssf the flow estimator's ego motion where given (estimated once, used as
+        given), else Kabsch on the static points weighted by their static probability; Kabsch on every point (flow);
+        None without flow or for the points method."""
         if flow is None or self.method is OdomMethod.POINTS:
             return None
+        if self.method is OdomMethod.SSF and ego is not None:
+            return ego.copy()
         weights = np.ones(len(points))
         if self.method is OdomMethod.SSF and dynamic is not None:
             weights = np.where(dynamic > self.config.static_threshold, 0.0, 1.0 - dynamic)

@@ -9,11 +9,10 @@ from typing import Any, NamedTuple, Protocol
 
 import numpy as np
 from pydantic import Field
-from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
-from ssf_common.geometry.neighbours import may_be_near, nearest
 from ssf_common.records import MotionMask, SceneFlow, Segmentation, SemanticFlow
+from ssf_common.temporal_prior import carry_prior, prior_source
 from ssf_seg_node.core.base import Segmenter
 
 
@@ -104,29 +103,29 @@ def flow_change(new: np.ndarray, old: np.ndarray | None) -> float:
     return float(np.linalg.norm(new - old, axis=1).mean()) if len(new) else 0.0
 
 
+class Convergence(NamedTuple):
+    """How much one iteration changed flow and mask, and whether the loop has converged."""
+
+    delta_flow: float
+    delta_mask: float
+    delta_total: float
+    converged: bool
+
+
+def convergence(config: FusionConfig, flow: np.ndarray, previous_flow: np.ndarray | None, new_mask: np.ndarray,
+                mask: np.ndarray | None) -> Convergence:
+    """Delta_total = alpha ||S^(i) - S^(i-1)|| + beta ||M^(i+1) - M^(i)|| and whether it fell below epsilon."""
+    delta_flow, delta_mask = flow_change(flow, previous_flow), mask_change(new_mask, mask)
+    total = config.alpha * delta_flow + config.beta * delta_mask
+    return Convergence(delta_flow, delta_mask, total, total < config.epsilon)
+
+
 def carry_mask(points: np.ndarray, flow: np.ndarray, probability: np.ndarray, next_points: np.ndarray,
                radius: float) -> np.ndarray:
     """The temporal prior M^(0) of the next scan: each of its points takes the dynamic probability of the nearest
-    point of this scan moved by its flow into the next scan's frame (0 where none lies within radius)."""
-    prior = np.zeros(len(next_points), np.float32)
-    probability = np.asarray(probability, np.float32)
-    moving = probability > 0.0
-    if not moving.any() or radius <= 0 or len(next_points) == 0:
-        return prior
-    moved = np.asarray(points, np.float64)[:, :3] + np.asarray(flow, np.float64)
-    following = np.asarray(next_points, np.float64)[:, :3]
-    # only the surroundings of the moving points matter: there, the nearest moved point of any kind decides
-    movers = cKDTree(moved[moving])  # one tree of the moved moving points for both questions
-    around = np.flatnonzero(may_be_near(moved[moving], moved, 2.0 * radius))
-    around = around[np.isfinite(nearest(moved[moving], moved[around], 2.0 * radius, movers).distance)]
-    candidates = np.flatnonzero(may_be_near(moved[moving], following, radius))
-    candidates = candidates[np.isfinite(nearest(moved[moving], following[candidates], radius, movers).distance)]
-    if candidates.size == 0:
-        return prior
-    found = nearest(moved[around], following[candidates], radius)
-    hit = np.isfinite(found.distance)
-    prior[candidates[hit]] = probability[around[found.index[hit]]]
-    return prior
+    point of this scan moved by its flow into the next scan's frame (0 where none lies within radius); the two
+    halves the graph's fusion and flow nodes run, back to back."""
+    return carry_prior(prior_source(0, "", points, flow, probability, radius), next_points)
 
 
 class FusionLoop:
@@ -152,12 +151,11 @@ class FusionLoop:
             segmentation_ms = (time.perf_counter() - started) * 1e3
             # 3. how much flow and mask changed
             new_mask = result.segmentation.dynamic_prob
-            delta_flow, delta_mask = flow_change(estimate.flow, previous_flow), mask_change(new_mask, mask)
-            delta_total = self.config.alpha * delta_flow + self.config.beta * delta_mask
+            change = convergence(self.config, estimate.flow, previous_flow, new_mask, mask)
             steps.append(FusionStep(iteration, estimate.flow, result.segmentation, np.asarray(estimate.ego),
-                                    delta_flow, delta_mask, delta_total, flow_ms, segmentation_ms))
+                                    change.delta_flow, change.delta_mask, change.delta_total, flow_ms, segmentation_ms))
             # 4. stop once they agree
-            if delta_total < self.config.epsilon:
+            if change.converged:
                 return FusionResult(steps, converged=True)
             previous_flow, mask = estimate.flow, new_mask
         return FusionResult(steps, converged=False)
@@ -200,41 +198,29 @@ class _Scan:
     frame_id: str
     points: np.ndarray
     started_s: float
-    flows: dict[int, np.ndarray] = field(default_factory=dict)
-    masks: dict[int, MotionMask] = field(default_factory=dict)  # mask computed from the flow of iteration i
-    follows: _Finished | None = None  # the finished scan right before this one, whose segmentation is its prior
+    flows: dict[int, SceneFlow] = field(default_factory=dict)  # S^(i) with the mask M^(i) it was conditioned on
+    masks: dict[int, MotionMask] = field(default_factory=dict)  # M^(i+1): the segmentation of S^(i)
     hinted_s: float | None = None  # when the last mask hint went out
 
 
-@dataclass(frozen=True)
-class _Finished:
-    stamp_ns: int
-    points: np.ndarray
-    flow: np.ndarray
-    dynamic_prob: np.ndarray
-
-
 class DistributedLoop:
-    """The fusion loop when flow and segmentation run in other processes: it takes S^(i) and the mask computed from
-    it as they arrive, keyed by stamp and iteration, and decides to continue (a mask hint) or to finish. A lost or
-    late message never stalls it: after `timeout_s` the best answer so far is published, and an iteration that the
-    measured round trip (hint -> mask) says would end after `timeout_s` is not started (the answer goes out at once).
-    The flow of a scan's iteration 0 is estimated before any mask exists, so the temporal prior (the previous scan's
-    segmentation carried by its flow) joins the first mask hint."""
+    """The fusion loop when flow and segmentation run in other processes: it takes S^(i) (with the mask M^(i) it was
+    conditioned on, and its ego motion) and the segmentation of it as they arrive, keyed by stamp and iteration, and
+    decides as `FusionLoop.run` does: continue (a mask hint) or finish. A lost or late message never stalls it: after
+    `timeout_s` the best answer so far is published, and an iteration that the measured round trip (hint -> mask) says
+    would end after `timeout_s` is not started (the answer goes out at once)."""
 
     def __init__(self, config: FusionConfig, timeout_s: float = 0.5) -> None:
         self.config = config
         self.timeout_s = timeout_s
         self.scan: _Scan | None = None
-        self.last: _Finished | None = None
-        self.gap_ns: int | None = None  # the shortest time between consecutive scans seen
         self.finished: dict[str, int] = {"converged": 0, "max_iterations": 0, "timeout": 0, "superseded": 0,
                                          "deadline": 0}
         self.round_trip_s: float | None = None  # mask hint -> the next iteration's mask, smoothed over scans
 
     def restart(self) -> None:
-        """Forget the scan in progress and the last answer: the stream started again (its stamps jumped back)."""
-        self.scan, self.last, self.gap_ns = None, None, None
+        """Forget the scan in progress: the stream started again (its stamps jumped back)."""
+        self.scan = None
 
     def on_flow(self, flow: SceneFlow, now_s: float) -> list[Finish]:
         """Remember S^(i); a flow of a newer scan finishes the current one with what it has."""
@@ -245,10 +231,9 @@ class DistributedLoop:
             if self.scan is not None:
                 done += self._finish_best("superseded")
             self.scan = _Scan(flow.stamp_ns, flow.frame_id, np.asarray(flow.points), now_s)
-            self.scan.follows = self._previous(self.scan)
         if len(flow.points) != len(self.scan.points):
             return done
-        self.scan.flows[flow.iteration] = np.asarray(flow.flow, np.float32)
+        self.scan.flows[flow.iteration] = flow
         return done
 
     def on_mask(self, mask: MotionMask, now_s: float) -> Continue | Finish | None:
@@ -263,44 +248,23 @@ class DistributedLoop:
         if i > 0 and scan.hinted_s is not None:
             taken = now_s - scan.hinted_s
             self.round_trip_s = taken if self.round_trip_s is None else 0.8 * self.round_trip_s + 0.2 * taken
-        flow, previous_flow = scan.flows[i], scan.flows.get(i - 1)
-        previous_mask = scan.masks.get(i - 1)
-        delta_flow = flow_change(flow, previous_flow)
-        delta_mask = mask_change(mask.dynamic_prob, None if previous_mask is None else previous_mask.dynamic_prob)
-        delta_total = self.config.alpha * delta_flow + self.config.beta * delta_mask
-        converged = delta_total < self.config.epsilon
-        status = self._status(i, delta_total, delta_flow, delta_mask, converged, mask)
-        if converged or i + 1 >= self.config.max_iterations:
-            return self._finish(i, status, "converged" if converged else "max_iterations")
+        flow, previous = scan.flows[i], scan.flows.get(i - 1)
+        change = convergence(self.config, flow.flow, None if previous is None else previous.flow, mask.dynamic_prob,
+                             flow.prior)
+        status = self._status(i, change.delta_total, change.delta_flow, change.delta_mask, change.converged, mask)
+        if change.converged or i + 1 >= self.config.max_iterations:
+            return self._finish(i, status, "converged" if change.converged else "max_iterations")
         if self.round_trip_s is not None and now_s - scan.started_s + self.round_trip_s > self.timeout_s:
             return self._finish(i, status, "deadline")  # another iteration would end after the timeout: answer now
         scan.hinted_s = now_s
-        prior = self._prior(scan) if i == 0 else None  # carried only for a hint (in real time the loop ends at i = 0)
-        hint = mask.dynamic_prob if prior is None else np.maximum(mask.dynamic_prob, prior)
-        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, hint, mask.instance, i + 1), status)
+        return Continue(MotionMask(scan.stamp_ns, scan.frame_id, scan.points, mask.dynamic_prob, mask.instance, i + 1),
+                        status)
 
     def on_timer(self, now_s: float) -> list[Finish]:
         """Give up on a scan that has waited too long, publishing the best answer so far."""
         if self.scan is not None and now_s - self.scan.started_s > self.timeout_s:
             return self._finish_best("timeout")
         return []
-
-    def _previous(self, scan: _Scan) -> _Finished | None:
-        """The last finished scan, if it came right before this one (its flow points into this scan's frame only
-        then)."""
-        last = self.last
-        if last is None or self.config.prior_radius <= 0 or scan.stamp_ns <= last.stamp_ns:
-            return None
-        gap = scan.stamp_ns - last.stamp_ns
-        self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
-        return None if gap > 1.5 * self.gap_ns else last  # else a scan was skipped in between
-
-    def _prior(self, scan: _Scan) -> np.ndarray | None:
-        """The segmentation of the scan right before this one carried onto it by its flow (None without one)."""
-        last = scan.follows
-        if last is None:
-            return None
-        return carry_mask(last.points, last.flow, last.dynamic_prob, scan.points, self.config.prior_radius)
 
     def _status(self, iteration: int, total: float, flow: float, mask: float, converged: bool, seg: MotionMask) -> LoopStatus:
         static = int(np.count_nonzero(seg.dynamic_prob <= 0.5))
@@ -322,11 +286,10 @@ class DistributedLoop:
 
     def _finish(self, iteration: int, status: LoopStatus, reason: str) -> Finish:
         scan = self.scan
-        mask = scan.masks[iteration]
+        mask, flow = scan.masks[iteration], scan.flows[iteration]
         segmentation = Segmentation.from_probability(mask.dynamic_prob, mask.instance)
-        result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, scan.flows[iteration], segmentation,
-                              iterations=iteration + 1, converged=reason == "converged")
-        self.last = _Finished(scan.stamp_ns, scan.points, scan.flows[iteration], mask.dynamic_prob)
+        result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, np.asarray(flow.flow, np.float32),
+                              segmentation, iterations=iteration + 1, converged=reason == "converged", ego=flow.ego)
         self.finished[reason] += 1
         self.scan = None
         return Finish(result, status, reason)

@@ -59,6 +59,29 @@ class ObstacleConfig(Section):
     still: StillConfig = StillConfig()
 
 
+class SceneObstacles(NamedTuple):
+    """Every obstacle of one scan: the moving objects with their velocities, and the still part as boxes."""
+
+    moving: Obstacles
+    still: Obstacles
+
+    def all(self) -> Obstacles:
+        """Both, the moving ones first (what /ssf/obstacles carries)."""
+        return stack(self.moving, self.still)
+
+
+def scan_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentation, ego: np.ndarray, dt: float,
+                   stamp_ns: int, frame_id: str, config: ObstacleConfig) -> SceneObstacles:
+    """The obstacles of scan t in its sensor frame: a box with a velocity per moving instance, and (config.still.enabled)
+    the clusters of its still points as boxes standing still (what stands still is in the way too: parked cars,
+    structure)."""
+    moving = extract_obstacles(points, flow, segmentation, ego, dt, stamp_ns, frame_id, config)
+    if not config.still.enabled:
+        return SceneObstacles(moving, Obstacles.empty(stamp_ns, frame_id))
+    still = np.asarray(points)[~segmentation.dynamic]
+    return SceneObstacles(moving, still_clusters(still, stamp_ns, frame_id, config.still).boxes)
+
+
 def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentation, ego: np.ndarray, dt: float,
                       stamp_ns: int, frame_id: str, config: ObstacleConfig) -> Obstacles:
     """Obstacles of scan t in its sensor frame: boxes at time t, velocities of the objects themselves (ego removed)."""
