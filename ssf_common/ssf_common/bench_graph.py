@@ -29,8 +29,6 @@ from ssf_common.launch import GraphSpec, Launcher, load_graph
 SAMPLE_PERIOD_S = 1.0
 WARMUP_S = 5.0  # the first seconds (imports, discovery, the first scans) are not counted
 REALTIME_LOOP_TIMEOUT_S = 0.15  # the fusion loop's timeout_s in real time: the latency budget (scan -> /cmd_vel p95)
-REALTIME_LOOP_ITERATIONS = 1  # in real time on two cores a further iteration costs a whole flow estimate that a newer
-# scan waits for, and with `rigid` brings no accuracy (README: scans never answered 78 -> 55 %, p50 -110 ms)
 
 
 @dataclass
@@ -176,9 +174,8 @@ def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dic
             node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": "realtime",
                                                           "driver": "none", "duration_s": 0.0, "episodes": episodes}})
         if node.executable == "ssf_fusion_node":  # in real time a scan's loop answers within the latency budget (the demo
-            # graph waits 2 s, since in lockstep time stands still) after one iteration (-p to iterate again)
-            node = node.model_copy(update={"parameters": {**node.parameters, "timeout_s": REALTIME_LOOP_TIMEOUT_S,
-                                                          "fusion.max_iterations": REALTIME_LOOP_ITERATIONS}})
+            # graph waits 2 s, since in lockstep time stands still)
+            node = node.model_copy(update={"parameters": {**node.parameters, "timeout_s": REALTIME_LOOP_TIMEOUT_S}})
         if node.name in parameters:
             node = node.model_copy(update={"parameters": {**node.parameters, **parameters[node.name]}})
         nodes.append(node)

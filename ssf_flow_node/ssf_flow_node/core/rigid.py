@@ -50,6 +50,9 @@ class RigidConfig(Section):
     max_extent: float = Field(12.0, gt=0.0, description="larger clusters (xy extent, m) are static structure unless the mask says otherwise")
     icp_points: int = Field(128, ge=3, description="points per cluster in its ICP (random, for speed on big clusters)")
     icp_iterations: int = Field(5, ge=1, description="iterations of the batched per-cluster ICP")
+    screen_still: bool = Field(True, description="clusters that standing still explains within their noise floor are "
+                               "not fitted (no fitted motion could be proven for them); their ends and carried motions "
+                               "are still tried")
     icp_gates: tuple[float, float] = Field((1.0, 0.3), description="correspondence gate (m), first and last iteration")
     residual_cap: float = Field(1.0, gt=0.0, description="nearest-neighbour residuals are truncated here (m)")
     min_gain: float = Field(0.3, ge=0.0, le=1.0, description="share of the static hypothesis' distance to the surfaces "
@@ -569,27 +572,42 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         active &= candidates
     tree = cKDTree(points2) if tree is None else tree
     carry = None if carried is None else carried_motions(clusters, carried, config)
-    translation = initial_translations(points1, points2, clusters, active, config, tree, previous,
-                                       None if carry is None else carry.translation)
     members = ranked_per_label(clusters.labels1, active, config.icp_points, priorities(len(points1), 2))
     source, labels = points1[members], clusters.labels1[members]
     allowed = clusters.parent[labels]
-    max_yaw = config.max_yaw_rate * config.dt
-    for gate in np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations):
-        moved = yaw_translate(source, yaw[labels], translation[labels])
-        gap, index = tree.query(moved, distance_upper_bound=gate)
-        good = np.isfinite(gap)
-        good[good] = clusters.labels2[index[good]] == allowed[good]
-        fitted = np.bincount(labels[good], minlength=count) >= 3
-        if normals2 is None:
-            new_yaw, new_translation = planar_kabsch(source[good], points2[index[good]], labels[good], count, max_yaw)
-        else:
-            new_yaw, new_translation = planar_plane_step(moved[good], points2[index[good]], normals2[index[good]],
-                                                         labels[good], yaw, translation, count, config.point_weight,
-                                                         max_yaw)
-        yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
+    floor = floors[clusters.parent]
+    counted = np.maximum(label_counts(labels, count), 1)
+
     def quality(moved: np.ndarray) -> Fit:
         return fit_quality(moved, labels, tree, clusters.labels2, allowed, config, count, normals2, points2)
+
+    # clusters that standing still explains within their noise floor cannot be shown moving by a fitted motion (see
+    # `explains`): they are not fitted (their ends, and a carried motion, are still tried below)
+    fit = active.copy()
+    if config.screen_still and previous is None:
+        still = quality(source)
+        carried_here = np.zeros(count, bool) if carry is None else carry.present
+        fit &= ~(unprovable(still, floor, counted, config) & ~believed & ~carried_here)
+    translation = initial_translations(points1, points2, clusters, fit, config, tree, previous,
+                                       None if carry is None else carry.translation)
+    max_yaw = config.max_yaw_rate * config.dt
+    fitting = fit[labels]
+    icp_source, icp_labels, icp_allowed = source[fitting], labels[fitting], allowed[fitting]
+    for gate in np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations):
+        moved = yaw_translate(icp_source, yaw[icp_labels], translation[icp_labels])
+        gap, index = tree.query(moved, distance_upper_bound=gate)
+        good = np.isfinite(gap)
+        good[good] = clusters.labels2[index[good]] == icp_allowed[good]
+        fitted = np.bincount(icp_labels[good], minlength=count) >= 3
+        if normals2 is None:
+            new_yaw, new_translation = planar_kabsch(icp_source[good], points2[index[good]], icp_labels[good], count,
+                                                     max_yaw)
+        else:
+            new_yaw, new_translation = planar_plane_step(moved[good], points2[index[good]], normals2[index[good]],
+                                                         icp_labels[good], yaw, translation, count, config.point_weight,
+                                                         max_yaw)
+        yaw[fitted], translation[fitted] = new_yaw[fitted], new_translation[fitted]
+    translation[~fit], yaw[~fit] = 0.0, 0.0
 
     moved = yaw_translate(source, yaw[labels], translation[labels])
     fit_moving = quality(moved)
@@ -600,8 +618,6 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
     fit_static = quality(source + height)
     speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
-    floor = floors[clusters.parent]
-    counted = np.maximum(label_counts(labels, count), 1)
     moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
     ends = np.zeros(count, dtype=bool)  # moved by the shift of their two ends: flanks sliding along themselves
     spare = active & ~moving & (sizes1 >= config.end_points)
@@ -771,6 +787,14 @@ def no_worse(fit_moving: Fit, fit_static: Fit, floor: np.ndarray, config: RigidC
     allowed = 1.0 + slack
     return ((fit_moving.plane <= allowed * np.maximum(fit_static.plane, floor))
             & (fit_moving.residual <= allowed * fit_static.residual) & (fit_moving.unexplained <= config.max_unexplained))
+
+
+def unprovable(fit_static: Fit, floor: np.ndarray, counted: np.ndarray, config: RigidConfig) -> np.ndarray:
+    """Per cluster, whether no motion could be proven by `explains` (without the mask's belief): standing still misses
+    the surfaces by no more than the noise floor, and leaves too few of its points unexplained for a motion to explain
+    min_explained_gain of them newly."""
+    margin = 1.0 + np.sqrt(config.min_cluster_points / counted)
+    return (fit_static.plane <= floor * margin) & (fit_static.unexplained < config.min_explained_gain)
 
 
 def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.ndarray, counted: np.ndarray,

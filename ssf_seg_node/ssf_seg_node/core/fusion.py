@@ -22,7 +22,10 @@ class FusionConfig(Section):
     alpha: float = Field(1.0, ge=0.0, description="weight of the flow change in Delta_total")
     beta: float = Field(1.0, ge=0.0, description="weight of the mask change in Delta_total")
     epsilon: float = Field(1e-3, gt=0.0, description="the loop has converged when Delta_total falls below this")
-    max_iterations: int = Field(5, ge=1, description="N_iter: flow estimates at most")
+    max_iterations: int = Field(1, ge=1, description="N_iter: flow estimates at most. One: the flow starts from the "
+                                "temporal prior and the segmentation answers it; further iterations change the answer "
+                                "by less than 0.001 in EPE and IoU on whole scans (`ssf eval fusion --iterations 5`) "
+                                "for a whole flow estimate each")
     prior_radius: float = Field(1.0, ge=0.0, description="temporal prior M^(0): each point of a scan takes the dynamic "
                                 "probability of the previous scan's nearest point moved by its flow, within this distance "
                                 "(m); 0: no prior, iteration 0 has no mask")
