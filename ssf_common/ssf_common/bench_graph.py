@@ -21,6 +21,7 @@ import numpy as np
 
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import parse_override
+from ssf_common.demo import in_real_time
 from ssf_common.diagnostics import read_status
 from ssf_common.errors import ConfigError
 from ssf_common.geometry.se3 import invert, yaw_of
@@ -28,7 +29,6 @@ from ssf_common.launch import GraphSpec, Launcher, load_graph
 
 SAMPLE_PERIOD_S = 1.0
 WARMUP_S = 5.0  # the first seconds (imports, discovery, the first scans) are not counted
-REALTIME_LOOP_TIMEOUT_S = 0.15  # the fusion loop's timeout_s in real time: the latency budget (scan -> /cmd_vel p95)
 
 
 @dataclass
@@ -44,6 +44,8 @@ class NodeRow:
     rss_mb: float  # at the end
     rss_slope_mb_per_10min: float  # over the second half of the window (the first fills caches and pools)
     rss_mb_per_minute: list[float] = field(default_factory=list)  # RSS at the end of each minute of the window
+    cpu_ms_per_scan: float | None = None  # CPU time (user + system) over the inputs answered in the window: per scan
+    # (flow, segmentation, fusion, odometry), tick (planner) or step (simulator); None where none was answered
 
 
 @dataclass
@@ -86,6 +88,7 @@ class Probe:
         self.first_drive = {"odom": True, "truth": True}  # stamps going back end the first drive's poses
         self.commands: list[float] = []
         self.diagnostics: dict[str, dict[str, float]] = {}
+        self.reports: dict[str, list[tuple[float, dict[str, float]]]] = collections.defaultdict(list)  # every report
         self.episode: tuple[str, float] = ("running", 0.0)
         self.ended: list[tuple[str, float]] = []  # every drive that ended: outcome, simulated seconds
         self.driven: list[tuple[float, float]] = []  # per drive, the latest (simulated seconds, metres) reported
@@ -154,8 +157,19 @@ class Probe:
             self.commands.append(time.monotonic())
 
     def on_diagnostics(self, msg: Any) -> None:
+        now = time.monotonic()
         with self.lock:
-            self.diagnostics.update(read_status(msg))
+            for name, values in read_status(msg).items():
+                self.diagnostics[name] = values
+                self.reports[name].append((now, values))
+
+    def answered_between(self, name: str, since: float) -> tuple[float, float, int] | None:
+        """From the first to the last report of a node after `since`: their times and the inputs answered in between
+        (None before two reports)."""
+        reports = [(at, answered_count(values)) for at, values in self.reports.get(name, []) if at >= since]
+        if len(reports) < 2:
+            return None
+        return reports[0][0], reports[-1][0], reports[-1][1] - reports[0][1]
 
     def close(self) -> None:
         self.node.destroy_node()
@@ -164,18 +178,15 @@ class Probe:
 def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dict[str, Any]] | None = None) -> GraphSpec:
     """The demo graph without its recorder, the simulator in real time driven by the planner (`episodes` drives back to
     back, 0: until stopped), with `parameters` set per node name."""
-    graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    graph = in_real_time(load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml"))))
     parameters = parameters or {}
     nodes = []
     for node in graph.nodes:
         if node.executable == "ssf":
             continue
         if node.executable == "sim_bridge":
-            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": "realtime",
-                                                          "driver": "none", "duration_s": 0.0, "episodes": episodes}})
-        if node.executable == "ssf_fusion_node":  # in real time a scan's loop answers within the latency budget (the demo
-            # graph waits 2 s, since in lockstep time stands still)
-            node = node.model_copy(update={"parameters": {**node.parameters, "timeout_s": REALTIME_LOOP_TIMEOUT_S}})
+            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "driver": "none",
+                                                          "duration_s": 0.0, "episodes": episodes}})
         if node.name in parameters:
             node = node.model_copy(update={"parameters": {**node.parameters, **parameters[node.name]}})
         nodes.append(node)
@@ -198,8 +209,17 @@ def node_parameters(items: list[str]) -> dict[str, dict[str, Any]]:
     return settings
 
 
-def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, float, float]]], stop: threading.Event) -> None:
-    """Every second: (time, CPU % of one core, RSS MB) of each node process."""
+def answered_count(numbers: dict[str, float]) -> int:
+    """The inputs a node's diagnostics say it answered: its workers' answered inputs, else its own count of estimates,
+    segmentations, fusion iterations, odometry steps, planner ticks or simulator steps."""
+    return int(sum(value for key, value in numbers.items() if key.endswith("_answered"))) or int(
+        sum(value for key, value in numbers.items() if key in ("estimates", "segmentations", "steps", "ticks",
+                                                               "iterations")))
+
+
+def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, float, float, float]]],
+                     stop: threading.Event) -> None:
+    """Every second: (time, CPU % of one core, RSS MB, CPU seconds used so far) of each node process."""
     import psutil
 
     handles: dict[str, psutil.Process] = {}
@@ -213,8 +233,9 @@ def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, fl
                     handle = handles[managed.label] = psutil.Process(managed.process.pid)
                     handle.cpu_percent(None)
                     continue
+                used = handle.cpu_times()
                 samples.setdefault(managed.label, []).append(
-                    (time.monotonic(), handle.cpu_percent(None), handle.memory_info().rss / 2**20))
+                    (time.monotonic(), handle.cpu_percent(None), handle.memory_info().rss / 2**20, used.user + used.system))
             except psutil.Error:
                 continue
 
@@ -265,24 +286,27 @@ def odometry_error(odometry: list[tuple[int, np.ndarray]], truth: dict[int, np.n
     return OdometryError(float(np.median(position)), max(position), max(heading), len(matched))
 
 
-def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float]]], since: float) -> list[NodeRow]:
-    """One row per node: its diagnostics, CPU share and memory over the window."""
+def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float, float]]], since: float) -> list[NodeRow]:
+    """One row per node: its diagnostics, CPU share, CPU time per input answered and memory over the window."""
     rows = []
     for label, series in sorted(samples.items()):
-        window = [(t, cpu, rss) for t, cpu, rss in series if t >= since]
+        window = [sample for sample in series if sample[0] >= since]
         if not window:
             continue
-        times, cpu, rss = (np.array(column) for column in zip(*window))
+        times, cpu, rss, used = (np.array(column) for column in zip(*window))
         settled = times >= times[0] + 0.5 * (times[-1] - times[0])  # the slope of the second half: caches have filled
         slope = float(np.polyfit(times[settled], rss[settled], 1)[0] * 600.0) if settled.sum() > 2 else 0.0
         numbers = probe.diagnostics.get(label, {})
-        answered = int(sum(value for key, value in numbers.items() if key.endswith("_answered"))) or int(
-            sum(value for key, value in numbers.items() if key in ("estimates", "segmentations", "steps", "ticks",
-                                                                   "iterations")))
+        answered = answered_count(numbers)
         dropped = int(sum(value for key, value in numbers.items() if key.endswith("_dropped")))
         minutes = [float(rss[times <= t][-1]) for t in np.arange(times[0] + 60.0, times[-1] + 1e-9, 60.0)]
+        between = probe.answered_between(label, since)
+        per_input = None
+        if between is not None and between[2] > 0 and len(used) > 1:  # CPU seconds used between the two reports
+            first, last, inputs = between
+            per_input = float((np.interp(last, times, used) - np.interp(first, times, used)) * 1e3 / inputs)
         rows.append(NodeRow(label, numbers.get("processing_ms_median"), numbers.get("processing_ms_p95"), answered,
-                            dropped, float(cpu.mean() / 100.0), float(rss[-1]), slope, minutes))
+                            dropped, float(cpu.mean() / 100.0), float(rss[-1]), slope, minutes, per_input))
     return rows
 
 
@@ -292,7 +316,7 @@ def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, e
     graph = bench_graph_spec(scenario, episodes, parameters)
     launcher = Launcher(graph, output=log or io.StringIO())
     probe = Probe()
-    samples: dict[str, list[tuple[float, float, float]]] = {}
+    samples: dict[str, list[tuple[float, float, float, float]]] = {}
     stop = threading.Event()
     sampler = threading.Thread(target=sample_processes, args=(launcher, samples, stop), daemon=True)
     started = time.monotonic()
@@ -343,7 +367,8 @@ def format_bench(bench: GraphBench) -> str:
                  "" if bench.odom_error_max_m is None else f"; /odom against the truth (first drive): "
                  f"{bench.odom_error_p50_m:.2f} m median, {bench.odom_error_max_m:.2f} m and "
                  f"{bench.odom_heading_error_max_deg:.1f} deg at most"),
-             f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'RSS MB':>7} {'MB/10min':>9}"]
+             f"{'node':<18} {'ms p50':>7} {'ms p95':>7} {'answered':>9} {'dropped':>8} {'CPU':>6} {'CPU ms/in':>9} "
+             f"{'RSS MB':>7} {'MB/10min':>9}"]
     if bench.episodes_requested != 1 and bench.episodes:
         ended = ", ".join(f"{count} {outcome}" for outcome, count in sorted(bench.episodes.items()))
         lines.insert(1, f"drives ended back to back: {ended}")
@@ -353,8 +378,9 @@ def format_bench(bench: GraphBench) -> str:
     for row in bench.nodes:
         median = f"{row.processing_ms_median:7.1f}" if row.processing_ms_median is not None else f"{'-':>7}"
         p95_row = f"{row.processing_ms_p95:7.1f}" if row.processing_ms_p95 is not None else f"{'-':>7}"
+        per_input = f"{row.cpu_ms_per_scan:9.1f}" if row.cpu_ms_per_scan is not None else f"{'-':>9}"
         lines.append(f"{row.node:<18} {median} {p95_row} {row.answered:9d} {row.dropped:8d} {100 * row.cpu_share:5.0f}% "
-                     f"{row.rss_mb:7.0f} {row.rss_slope_mb_per_10min:9.2f}")
+                     f"{per_input} {row.rss_mb:7.0f} {row.rss_slope_mb_per_10min:9.2f}")
     return "\n".join(lines)
 
 

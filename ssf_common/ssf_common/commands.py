@@ -50,6 +50,10 @@ def _register_graph_commands(groups: CommandGroups) -> None:
     demo.add_argument("--out", default=None, help="output folder (default bags/demo_<time>)")
     demo.add_argument("--driver", choices=("planner", "follow"), default="planner",
                       help="who drives: the MPC planner on SSF perception (default) or the built-in route follower")
+    demo.add_argument("--realtime", action="store_true",
+                      help="run the simulator at wall-clock 10 Hz: the stages answer what they can in real time, as on a "
+                      "car (what `ssf bench graph` measures). Default: lockstep, where the simulator waits for each "
+                      "command, so every scan is answered and a slow machine drives the same route, only slower")
     demo.add_argument("--video", metavar="FILE", default=None,
                       help="after the run, render a bird's-eye animation of the recording to FILE (.mp4 or .gif)")
     add_foxglove_options(demo)
@@ -87,7 +91,7 @@ def _demo(args: argparse.Namespace) -> int:
     out = Path(args.out) if args.out else Path("bags") / time.strftime("demo_%Y%m%d_%H%M%S")
     video = Path(args.video) if args.video else None
     return run_demo(args.scenario, args.duration, out, args.seed, viewer=viewer_config(args, "ssf demo"), video=video,
-                    driver=args.driver)
+                    driver=args.driver, realtime=args.realtime)
 
 
 def _register_bench_commands(groups: CommandGroups) -> None:

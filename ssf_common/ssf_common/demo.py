@@ -23,6 +23,7 @@ from ssf_common.viewer.server import ViewerConfig
 RECORDED_TOPICS = ("/lidar/points", "/clock", "/sim/episode", "/ssf/flow", "/ssf/mask", "/ssf/semantic_flow",
                    "/ssf/obstacles", "/odom", "/ssf/plan", "/cmd_vel")
 SCENARIO_LOADERS = "ssf.scenarios"  # entry points: load_scenario(name_or_path) of the installed simulator
+REALTIME_LOOP_TIMEOUT_S = 0.15  # in real time a scan's fusion loop answers within the latency budget (scan -> /cmd_vel)
 
 
 @dataclass(frozen=True)
@@ -52,9 +53,23 @@ class DemoPaths:
         return self.out / "graph.yaml"
 
 
-def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, driver: str = "planner") -> GraphSpec:
-    """The shipped demo graph with this run's scenario, duration and output paths filled in (the episode picture is
-    drawn from the recording afterwards, see `draw_episode`)."""
+def in_real_time(graph: GraphSpec) -> GraphSpec:
+    """The graph with the simulator at wall-clock rate instead of lockstep, and the fusion loop answering within the
+    real-time latency budget (in lockstep time stands still while it waits)."""
+    nodes = []
+    for node in graph.nodes:
+        if node.executable == "sim_bridge":
+            node = node.model_copy(update={"parameters": {**node.parameters, "mode": "realtime"}})
+        if node.executable == "ssf_fusion_node":
+            node = node.model_copy(update={"parameters": {**node.parameters, "timeout_s": REALTIME_LOOP_TIMEOUT_S}})
+        nodes.append(node)
+    return graph.model_copy(update={"nodes": nodes})
+
+
+def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, driver: str = "planner",
+               realtime: bool = False) -> GraphSpec:
+    """The shipped demo graph with this run's scenario, duration and output paths filled in, in lockstep or in real
+    time (the episode picture is drawn from the recording afterwards, see `draw_episode`)."""
     graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
     nodes: list[NodeSpec] = []
     for node in graph.nodes:
@@ -73,7 +88,8 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, dr
         if node.executable == "ssf_odom_node" and driver != "planner":  # the planner's commands do not drive the car
             node = node.model_copy(update={"parameters": {**node.parameters, "command_topic": ""}})
         nodes.append(node)
-    return graph.model_copy(update={"nodes": nodes})
+    graph = graph.model_copy(update={"nodes": nodes})
+    return in_real_time(graph) if realtime else graph
 
 
 def check_scenario(scenario: str) -> None:
@@ -98,18 +114,19 @@ def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: 
 
 
 def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1, *, viewer: ViewerConfig | None = None,
-             video: Path | None = None, driver: str = "planner") -> int:
+             video: Path | None = None, driver: str = "planner", realtime: bool = False) -> int:
     """Run the graph until the episode ends (served live to Foxglove with a viewer config); draw the episode from its
     recording (and animate it to `video`); print where everything is, or what went wrong (exit 1)."""
     check_inputs(scenario, duration_s, out, seed, video)
     paths = DemoPaths(out)
-    graph = with_viewer(demo_graph(paths, scenario, duration_s, seed, driver), viewer)
+    graph = with_viewer(demo_graph(paths, scenario, duration_s, seed, driver, realtime), viewer)
     try:
         paths.graph.write_text(config_lib.dump(graph))
     except OSError as err:
         raise DataError(f"{paths.graph}: cannot write ({err.strerror})") from None
     who = "the MPC planner on SSF perception" if driver == "planner" else "the built-in route follower"
-    print(f"demo: scenario {scenario}, {duration_s:g} s of simulated driving by {who}, results in {paths.out}",
+    pace = "in real time" if realtime else "in lockstep"
+    print(f"demo: scenario {scenario}, {duration_s:g} s of simulated driving by {who} {pace}, results in {paths.out}",
           file=sys.stderr)
     start = time.monotonic()
     launcher = Launcher(graph, output=sys.stderr)

@@ -14,34 +14,29 @@ from ssf_common.records import PriorSource
 
 def prior_source(stamp_ns: int, frame_id: str, points: np.ndarray, flow: np.ndarray, probability: np.ndarray,
                  radius: float) -> PriorSource:
-    """The points of a scan within 2 x radius of its moving ones (probability > 0), moved by their flow, with their
-    dynamic probability: near a moving point, the nearest moved point of any kind decides the prior."""
+    """The points of a scan moved by their flow, with their dynamic probability, where they may lie within 2 x radius
+    of a moving one (probability > 0; a grid test, which keeps every such point and some farther ones): a point of the
+    next scan within radius of a moving point finds its nearest moved point among them."""
     probability = np.asarray(probability, np.float32)
     moving = probability > 0.0
     if not moving.any() or radius <= 0:
         return PriorSource(stamp_ns, frame_id, np.zeros((0, 3), np.float32), np.zeros(0, np.float32), radius)
     moved = np.asarray(points, np.float64)[:, :3] + np.asarray(flow, np.float64)
-    movers = moved[moving]
-    around = np.flatnonzero(may_be_near(movers, moved, 2.0 * radius))
-    around = around[np.isfinite(nearest(movers, moved[around], 2.0 * radius).distance)]
+    around = np.flatnonzero(may_be_near(moved[moving], moved, 2.0 * radius))
     return PriorSource(stamp_ns, frame_id, moved[around].astype(np.float32), probability[around], radius)
 
 
 def carry_prior(source: PriorSource, next_points: np.ndarray) -> np.ndarray:
-    """The dynamic probability of every point of the next scan: that of the nearest source point, where a moving one
-    lies within the source's radius (0 elsewhere)."""
+    """The dynamic probability of every point of the next scan: that of the nearest source point within the source's
+    radius (0 where none lies there, or the nearest does not move)."""
     radius = source.radius
     prior = np.zeros(len(next_points), np.float32)
     moving = source.probability > 0.0
     if not moving.any() or radius <= 0 or len(next_points) == 0:
         return prior
     points = np.asarray(source.points, np.float64)
-    movers = points[moving]
     following = np.asarray(next_points, np.float64)[:, :3]
-    candidates = np.flatnonzero(may_be_near(movers, following, radius))
-    candidates = candidates[np.isfinite(nearest(movers, following[candidates], radius).distance)]
-    if candidates.size == 0:
-        return prior
+    candidates = np.flatnonzero(may_be_near(points[moving], following, radius))  # only near a mover can one be nearest
     found = nearest(points, following[candidates], radius)
     hit = np.isfinite(found.distance)
     prior[candidates[hit]] = source.probability[found.index[hit]]

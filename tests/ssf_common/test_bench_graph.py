@@ -24,10 +24,13 @@ class ScriptedProbe:
         self.commands = [10.27, 10.29, 10.5]  # the second command answers scan 100 again: counted once
         self.diagnostics = {"ssf_flow_node": {"scan_answered": 3, "hint_answered": 2, "scan_dropped": 1,
                                               "processing_ms_median": 40.0, "processing_ms_p95": 55.0}}
+        self.reports = {"ssf_flow_node": [(4.0, {"scan_answered": 1}), (110.0, {"scan_answered": 2}),
+                                          (410.0, self.diagnostics["ssf_flow_node"])]}
         self.episode = ("running", 0.0)
         self.ended = []
 
     shown_at = Probe.shown_at
+    answered_between = Probe.answered_between
 
 
 def test_latency_is_measured_from_the_scans_clock_time_to_the_answering_command():
@@ -52,9 +55,11 @@ def test_node_rows_combine_diagnostics_and_process_samples():
     """RSS jumps at the start (caches filling), then leaks 1 MB per 100 s: the slope is taken over the second half."""
     times = np.arange(10.0, 601.0, 10.0)
     rss = 100.0 + 50.0 * (times >= 20) + np.clip(times - 300.0, 0, None) / 100.0
-    samples = {"ssf_flow_node": [(1.0, 0.0, 90.0)] + [(t, 70.0, m) for t, m in zip(times, rss)]}
+    used = 0.7 * (times - 10.0)  # CPU seconds: 70 % of a core
+    samples = {"ssf_flow_node": [(1.0, 0.0, 90.0, 0.0)] + [(t, 70.0, m, u) for t, m, u in zip(times, rss, used)]}
     [row] = node_rows(ScriptedProbe(), samples, since=5.0)
     assert row.answered == 5 and row.dropped == 1 and row.processing_ms_median == 40.0
+    assert row.cpu_ms_per_scan == pytest.approx(0.7 * 300.0 * 1e3 / 3)  # 3 inputs answered in 300 s between reports
     assert row.cpu_share == pytest.approx(0.70) and row.rss_mb == pytest.approx(153.0)
     assert row.rss_slope_mb_per_10min == pytest.approx(6.0, rel=0.05)
     assert row.rss_mb_per_minute[0] == pytest.approx(150.0) and row.rss_mb_per_minute[-1] == pytest.approx(152.5)
@@ -86,11 +91,12 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
 
 
 def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
-    from ssf_common.bench_graph import REALTIME_LOOP_TIMEOUT_S, node_parameters
+    from ssf_common.bench_graph import node_parameters
+    from ssf_common.demo import REALTIME_LOOP_TIMEOUT_S
     from ssf_common.errors import ConfigError
 
     default = next(node for node in bench_graph_spec("urban_200", 1).nodes if node.name == "ssf_fusion_node")
-    assert default.parameters["fusion.max_iterations"] == 1  # in real time the loop answers after its first iteration
+    assert "fusion.max_iterations" not in default.parameters  # one iteration: the default, lockstep or real time
     settings = node_parameters(["ssf_fusion_node:fusion.max_iterations:=3", "ssf_flow_node:estimator:=ego"])
     assert settings == {"ssf_fusion_node": {"fusion.max_iterations": 3}, "ssf_flow_node": {"estimator": "ego"}}
     fusion = next(node for node in bench_graph_spec("urban_200", 1, settings).nodes if node.name == "ssf_fusion_node")
@@ -154,3 +160,21 @@ def test_odometry_is_scored_against_the_truth_of_the_first_drive():
         Probe.on_truth(probe, odometry_to_msg(estimate))
     assert [stamp for stamp, _ in probe.odometry_poses] == [100, 200] and sorted(probe.truth_poses) == [100, 200]
     assert len(probe.odometry) == 4  # latency still counts every answer
+
+
+def test_a_short_bench_graph_reports_cpu_per_scan_of_every_node(tmp_path):
+    """`ssf bench graph --duration 5`: the whole graph for real, every node's CPU time per input answered in the JSON."""
+    import json
+    import subprocess
+    import sys
+
+    out = tmp_path / "graph.json"
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "bench", "graph", "--duration", "5",
+                             "--json", str(out)], capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-3000:]
+    rows = {row["node"]: row for row in json.loads(out.read_text())["nodes"]}
+    assert {"sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_fusion_node", "ssf_odom_node", "ssf_planner_node"} <= set(rows)
+    assert all("cpu_ms_per_scan" in row for row in rows.values())
+    for node in ("sim_bridge", "ssf_flow_node"):  # the simulator steps and the flow estimates, whatever the load
+        assert rows[node]["cpu_ms_per_scan"] is not None and rows[node]["cpu_ms_per_scan"] > 0
+    assert "CPU ms/in" in result.stdout

@@ -136,3 +136,24 @@ def test_the_odometry_takes_the_commands_as_its_prior_only_when_they_drive(tmp_p
     graph = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1, driver=driver)
     odometry = next(node for node in graph.nodes if node.executable == "ssf_odom_node")
     assert odometry.parameters.get("command_topic", "/cmd_vel") == command_topic
+
+
+def test_demo_in_real_time_records_commands(tmp_path):
+    """`ssf demo --realtime`: the simulator at wall-clock rate, the planner's commands recorded."""
+    out = tmp_path / "run"
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--realtime", "--duration", "3",
+                             "--out", str(out)], capture_output=True, text=True, timeout=240)
+    assert result.returncode == 0, result.stderr[-4000:]
+    assert "in real time" in result.stderr and "mode: realtime" in (out / "graph.yaml").read_text()
+    with open_bag(out / "recording") as bag:
+        assert bag.topics["/cmd_vel"].message_count > 0 and bag.topics["/ssf/semantic_flow"].message_count > 0
+
+
+def test_the_real_time_graph_is_the_lockstep_graph_at_wall_clock_rate(tmp_path):
+    lockstep = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1)
+    realtime = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1, realtime=True)
+    assert [node.name for node in lockstep.nodes] == [node.name for node in realtime.nodes]
+    sim = [next(n for n in graph.nodes if n.executable == "sim_bridge") for graph in (lockstep, realtime)]
+    assert sim[0].parameters["mode"] == "lockstep" and sim[1].parameters["mode"] == "realtime"
+    fusion = next(n for n in realtime.nodes if n.executable == "ssf_fusion_node")
+    assert fusion.parameters["timeout_s"] == demo.REALTIME_LOOP_TIMEOUT_S
