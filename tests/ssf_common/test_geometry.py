@@ -359,3 +359,19 @@ def test_label_sums_of_rows_match_a_bincount_per_row():
     values = rng.normal(size=(5, 200))
     expected = np.stack([np.bincount(labels, row, 7) for row in values], axis=1)
     np.testing.assert_allclose(label_sums_of_rows(values, labels, 7), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_dbscan_gives_scikit_learn_s_labels(seed):
+    """Clusters, their numbering, border points between two clusters and noise, as scikit-learn labels them."""
+    from sklearn.cluster import DBSCAN
+
+    from ssf_common.geometry.clustering import dbscan
+
+    rng = np.random.default_rng(seed)
+    points = np.concatenate([rng.normal(centre, 0.4, (60, 2)) for centre in ((0, 0), (1.6, 0), (5, 5))]
+                            + [rng.uniform(-5, 10, (40, 2))])
+    expected = DBSCAN(eps=0.5, min_samples=5).fit_predict(points)
+    found = dbscan(points, 0.5, 5)
+    np.testing.assert_array_equal(found.labels, expected)
+    assert found.count == expected.max() + 1 and (expected == -1).any()

@@ -146,6 +146,28 @@ def test_cells_keep_the_pose_sources_apart():
     assert cells[1].pose_error_max_m == pytest.approx(0.2)
 
 
+def test_perception_as_late_as_the_real_time_graph_is_a_row_of_its_own(tmp_path):
+    """--graph-bench reads the latency and the answered share a real-time graph measured; its trials form the row
+    'ssf (real time)' beside the lockstep one."""
+    import json
+
+    from ssf_eval.nav.cli import graph_timing
+
+    bench = tmp_path / "graph.json"
+    bench.write_text(json.dumps({"latency_p50_ms": 120.0, "scans_dropped_ratio": 0.04}))
+    assert graph_timing(bench) == (0.12, 1)
+    bench.write_text(json.dumps({"latency_p50_ms": 610.0, "scans_dropped_ratio": 0.62}))
+    assert graph_timing(bench) == (0.61, 3)
+    bench.write_text("{}")
+    with pytest.raises(ConfigError, match="not the JSON of `ssf bench graph`"):
+        graph_timing(bench)
+    lockstep = replace(fake_trial(TrialSpec("ssf", 50, 0, pose="ssf")), pose="ssf")
+    late = replace(lockstep, latency_s=0.12)
+    cells = summarise([lockstep, late])
+    assert [cell.source for cell in cells] == ["ssf + ssf pose", "ssf (real time) + ssf pose"]
+    assert cells[1].latency_s == 0.12 and cells[1].answer_every == 1
+
+
 def test_cells_come_source_by_source_each_by_growing_density():
     """A log merged from campaign lanes lists its trials in any order; the table does not."""
     trials = [fake_trial(TrialSpec(perception, agents, 0)) for perception, agents in

@@ -52,6 +52,10 @@ def register(groups: CommandGroups) -> None:
                      "does (default 0: lockstep)")
     nav.add_argument("--answer-every", type=int, default=1, metavar="N",
                      help="perception answers one scan in N, the others dropped as by a busy node (default 1)")
+    nav.add_argument("--graph-bench", type=Path, metavar="JSON",
+                     help="perception as late and as rare as a measured real-time graph gives it: --latency and "
+                     "--answer-every from the JSON of `ssf bench graph` (its scan -> /cmd_vel median latency and the "
+                     "share of scans it answered); the rows are named '(real time)'")
     nav.add_argument("--loop-iterations", type=int, default=1, metavar="N",
                      help="ssf: flow <-> segmentation iterations per scan pair, each scan starting from the previous "
                      "one's mask (default 1, as the real-time graph runs the loop; the demo's lockstep graph uses 3)")
@@ -61,6 +65,27 @@ def register(groups: CommandGroups) -> None:
                      help="scenario setting of every trial's world (the names of `ssf sim -p`), e.g. -s "
                      "agents.ego_yield:=0 (agents keep their way: the ego must give way); part of each trial's key")
     nav.set_defaults(func=run_eval)
+
+
+def graph_timing(path: Path) -> tuple[float, int]:
+    """(latency s, answer every N scans) of a real-time graph from the JSON of `ssf bench graph`: its median scan ->
+    /cmd_vel latency, and one scan in round(1 / share answered)."""
+    import json
+
+    from ssf_common.errors import ConfigError
+
+    try:
+        bench = json.loads(path.read_text())
+        latency_ms, dropped = float(bench["latency_p50_ms"]), float(bench["scans_dropped_ratio"])
+    except OSError as err:
+        raise ConfigError(f"--graph-bench {path}: cannot read it ({err.strerror})") from None
+    except (ValueError, KeyError, TypeError):
+        raise ConfigError(f"--graph-bench {path}: not the JSON of `ssf bench graph` (latency_p50_ms and "
+                          "scans_dropped_ratio needed)") from None
+    if not (0.0 <= latency_ms <= 10_000.0 and 0.0 <= dropped < 1.0):
+        raise ConfigError(f"--graph-bench {path}: latency_p50_ms {latency_ms:g} or scans_dropped_ratio {dropped:g} "
+                          "out of range")
+    return round(latency_ms / 1000.0, 3), max(1, round(1.0 / (1.0 - dropped)))
 
 
 def run_eval(args: argparse.Namespace) -> int:
@@ -91,6 +116,10 @@ def run_eval(args: argparse.Namespace) -> int:
         raise ConfigError(f"--trials must be at least 1, got {args.trials}")
     if not 0 <= args.seed <= 2**32 - 1 - args.trials:
         raise ConfigError(f"--seed must be from 0 to 2^32 - 1 - trials, got {args.seed}")
+    if args.graph_bench is not None:
+        args.latency, args.answer_every = graph_timing(args.graph_bench)
+        print(f"navigation: perception {args.latency:.3f} s late, one scan in {args.answer_every}, as {args.graph_bench} "
+              "measured the real-time graph", file=sys.stderr)
     if not (math.isfinite(args.latency) and 0 <= args.latency <= 10):
         raise ConfigError(f"--latency must be from 0 to 10 s, got {args.latency:g}")
     if args.answer_every < 1:
@@ -203,7 +232,9 @@ def format_failures(records) -> str:
             why += f" ({record.collided_with})"
         elif record.standing_ahead is not None and record.standing_ahead >= QUEUE_MIN:
             why += f" (behind a queue of {record.standing_ahead})"
-        cells.setdefault((source_name(record.perception, record.pose), record.agents), []).append(f"{record.seed} {why}")
+        late = record.latency_s > 0 or record.answer_every > 1
+        cells.setdefault((source_name(record.perception, record.pose, late), record.agents), []).append(
+            f"{record.seed} {why}")
     return "\n".join(["failed trials (seed: outcome):"] + [f"- {source}/{agents}: {'; '.join(items)}"
                                                            for (source, agents), items in cells.items()]) if cells else ""
 

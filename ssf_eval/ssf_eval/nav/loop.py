@@ -115,6 +115,8 @@ class TrialRecord:
     pose_error_max_m: float = 0.0
     standing_ahead: int | None = None  # stuck or timed out: vehicles standing in the route's lane in the 30 m ahead
     moving_speed_mps: float | None = None  # the paper's moving average speed: distance over the time spent moving
+    latency_s: float = 0.0  # perception answered this long after its scan (0: lockstep)
+    answer_every: int = 1  # perception answered one scan in this many
 
     @property
     def success(self) -> bool:
@@ -313,7 +315,8 @@ class ClosedLoop:
             fallback_reasons=dict(stats.reasons) if stats else {}, solve_ms_median=_stat(self.solve_ms, 50),
             solve_ms_p95=_stat(self.solve_ms, 95), solve_ms_max=_stat(self.solve_ms, 100),
             perception_ms_median=_stat(self.perceive_ms, 50), step_ms_median=_stat(self.step_ms, 50),
-            wall_s=round(time.perf_counter() - started, 1), pose=spec.pose,
+            wall_s=round(time.perf_counter() - started, 1), pose=spec.pose, latency_s=spec.latency_s,
+            answer_every=spec.answer_every,
             pose_error_median_m=_stat(self.pose_errors, 50), pose_error_max_m=_stat(self.pose_errors, 100),
             standing_ahead=standing_ahead(self.sim) if self.outcome in (TrialOutcome.STUCK, TrialOutcome.TIMEOUT)
             else None, moving_speed_mps=self.moving.speed)

@@ -34,9 +34,11 @@ def barn_score(success: bool, route_length: float, time_s: float, reference_spee
     return optimal / min(max(time_s, 2 * optimal), 8 * optimal)
 
 
-def source_name(perception: str, pose: str) -> str:
-    """A table row's name: the perception source, and the pose source when it is not the ground truth."""
-    return perception if pose == "gt" else f"{perception} + {pose} pose"
+def source_name(perception: str, pose: str, late: bool = False) -> str:
+    """A table row's name: the perception source ("(real time)": answering as late and as rarely as the real-time
+    graph), and the pose source when it is not the ground truth."""
+    name = f"{perception} (real time)" if late else perception
+    return name if pose == "gt" else f"{name} + {pose} pose"
 
 
 @dataclass(frozen=True)
@@ -64,11 +66,14 @@ class CellSummary:
     solve_ms_p95: float  # median over trials of each trial's p95
     pose: str = "gt"  # where the ego pose came from: the simulator (gt) or SSF odometry (ssf)
     pose_error_max_m: float = 0.0  # with the ssf pose: the median over trials of each trial's largest position error
+    latency_s: float = 0.0  # perception answered this long after its scan (0: lockstep)
+    answer_every: int = 1  # perception answered one scan in this many
 
     @property
     def source(self) -> str:
-        """The row's name: the perception source, and the pose source when it is not the ground truth."""
-        return source_name(self.perception, self.pose)
+        """The row's name: the perception source, whether it answered as the real-time graph does, and the pose source
+        when it is not the ground truth."""
+        return source_name(self.perception, self.pose, self.latency_s > 0 or self.answer_every > 1)
 
     def to_json(self) -> dict[str, Any]:
         """Plain data for the result file."""
@@ -76,14 +81,16 @@ class CellSummary:
 
 
 def summarise(records: Iterable[TrialRecord], reference_speed: float = 10.0) -> list[CellSummary]:
-    """Per (perception, pose, agents) cell: the sources in the order they first appear, each by growing density."""
-    cells: dict[tuple[str, str, int], list[TrialRecord]] = {}
-    sources: dict[tuple[str, str], int] = {}
+    """Per (perception, pose, timing, agents) cell: the sources in the order they first appear, each by growing
+    density (timing: how late and how rarely perception answered)."""
+    cells: dict[tuple, list[TrialRecord]] = {}
+    sources: dict[tuple, int] = {}
     for record in records:
-        sources.setdefault((record.perception, record.pose), len(sources))
-        cells.setdefault((record.perception, record.pose, record.agents), []).append(record)
-    ordered = sorted(cells.items(), key=lambda item: (sources[item[0][:2]], item[0][2]))
-    return [summarise_cell(perception, agents, rows, reference_speed) for (perception, _pose, agents), rows in ordered]
+        source = (record.perception, record.pose, record.latency_s, record.answer_every)
+        sources.setdefault(source, len(sources))
+        cells.setdefault((*source, record.agents), []).append(record)
+    ordered = sorted(cells.items(), key=lambda item: (sources[item[0][:4]], item[0][4]))
+    return [summarise_cell(key[0], key[4], rows, reference_speed) for key, rows in ordered]
 
 
 def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], reference_speed: float) -> CellSummary:
@@ -108,7 +115,8 @@ def summarise_cell(perception: str, agents: int, rows: list[TrialRecord], refere
         path_length_m_mean=round(sum(row.path_length_m for row in rows) / len(rows), 1),
         fallback_rate=round(sum(row.fallbacks for row in rows) / ticks, 5) if ticks else 0.0,
         solve_ms_p95=round(_median([row.solve_ms_p95 for row in rows]), 2), pose=rows[0].pose,
-        pose_error_max_m=round(_median([row.pose_error_max_m for row in rows]), 3))
+        pose_error_max_m=round(_median([row.pose_error_max_m for row in rows]), 3), latency_s=rows[0].latency_s,
+        answer_every=rows[0].answer_every)
 
 
 def _mean(values: list[float]) -> float | None:
