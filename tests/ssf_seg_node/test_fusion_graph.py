@@ -54,7 +54,7 @@ def test_distributed_loop_continues_then_converges_and_times_out():
 def graph():
     quiet = ["--ros-args", "-p", "report_period_s:=60.0"]
     nodes = [FlowNode(argv=quiet + ["-p", "preprocess.remove_ground:=false"]), SegNode(argv=quiet),
-             FusionNode(argv=quiet + ["-p", "timeout_s:=5.0"])]
+             FusionNode(argv=quiet + ["-p", "timeout_s:=5.0", "-p", "fusion.max_iterations:=3"])]  # the paper's loop
     for node in nodes:
         node.spin_in_thread()
     probe = Node("probe")
@@ -87,7 +87,7 @@ def test_the_node_loop_converges_on_replayed_scans(graph, capfd):
     assert result.stamp_ns == 1_000_000_000 and len(result) == len(pair.pc1)
     # what the same loop finds in process, the graph finds too
     in_process = FusionLoop(make_estimator(config=build(FlowConfig, WHOLE_SCAN, {"preprocess": {"remove_ground": False}})),
-                            make_segmenter(), FusionConfig()).run(pair.pc1, pair.pc2).segmentation
+                            make_segmenter(), FusionConfig(max_iterations=3)).run(pair.pc1, pair.pc2).segmentation
     assert (result.segmentation.dynamic == in_process.dynamic).mean() > 0.99
     assert (result.segmentation.dynamic == pair.dynamic1).mean() > 0.95 and result.segmentation.num_instances >= 1
     found = obstacles_from_msg(obstacles[0])
