@@ -92,6 +92,10 @@ class RigidConfig(Section):
                                  "g): where only the alignment without the mask's dynamic points is a change from the "
                                  "previous pair's motion a vehicle can make in dt, it is taken (traffic moving with the ego "
                                  "pulls the other towards standing still)")
+    ego_vouch: bool = Field(True, description="where the mask calls enough points dynamic, the alignment without them is "
+                            "taken at once when it is a change of the previous pair's motion a vehicle can make "
+                            "(ego_max_accel, ego_mask_share): the alignment on every point is made only to judge one "
+                            "that is not")
     ego_mask_share: float = Field(0.5, ge=0.0, le=1.0, description="the alignment without the mask's dynamic points "
                                   "is taken for being the only plausible change only while the mask calls at most this "
                                   "share of the points dynamic (a mask that hides the static structure drags an alignment "
@@ -312,36 +316,50 @@ class RigidFlowEstimator:
 
     def ego_motion(self, state: PairState, dynamic: np.ndarray | None) -> np.ndarray:
         """Ego motion aligned on every point (the robust kernel drops a few movers) and, where the mask calls more than
-        `ego_refit` of the points dynamic, aligned without them too. Where the two agree within `ego_tolerance`, the
-        second (no movers); where they differ, the first, unless the second lies nearer the previous pair's ego motion
-        (constant velocity) by more than the tolerance, or only the second is a change a vehicle can make. A mask
-        that hides static structure and keeps oncoming cars drags the second away step by step; traffic moving with
-        the ego pulls the first towards standing still, a jump no vehicle makes between two scans."""
+        `ego_refit` of the points dynamic, aligned without them. The second is taken at once where it is a change of
+        the previous pair's motion a vehicle can make (constant velocity vouches for it, `ego_vouch`). Otherwise both
+        are aligned: where they agree within `ego_tolerance`, the second (no movers); where they differ, the first,
+        unless the second lies nearer the previous pair's ego motion by more than the tolerance, or only the second is
+        a change a vehicle can make. A mask that hides static structure and keeps oncoming cars drags the second away
+        step by step; traffic moving with the ego pulls the first towards standing still, a jump no vehicle makes
+        between two scans."""
+        if dynamic is None:  # a question without a mask leaves the stream's motion (the next pair's prior) as it was
+            state.ego = self.every_point(state) if state.ego is None else state.ego
+            return self.every_point(state)
+        share = float(np.mean(dynamic)) if dynamic.size else 0.0
+        if np.count_nonzero(dynamic) <= self.config.ego_refit * state.source.shape[0]:
+            state.ego = self.every_point(state)
+            return state.ego
+        keep = np.ones(state.source.shape[0], bool)
+        keep[: dynamic.size] = ~dynamic
+        masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
+        if self.config.ego_vouch and state.prior is not None and self.plausible(masked, state.prior, share):
+            state.ego = masked
+            return state.ego
+        base = self.every_point(state)
+        vouched = motion_gap(masked, base) <= self.config.ego_tolerance or (
+            state.prior is not None and self.nearer_prior(masked, base, state.prior, share))
+        state.ego = masked if vouched else base
+        return state.ego
+
+    def every_point(self, state: PairState) -> np.ndarray:
+        """The ego motion aligned on every point of the pair (once per pair)."""
         if state.base_ego is None:
             state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior)
-        if dynamic is None:  # a question without a mask leaves the stream's motion (the next pair's prior) as it was
-            state.ego = state.base_ego if state.ego is None else state.ego
-            return state.base_ego
-        state.ego = state.base_ego
-        if np.count_nonzero(dynamic) > self.config.ego_refit * state.source.shape[0]:
-            keep = np.ones(state.source.shape[0], bool)
-            keep[: dynamic.size] = ~dynamic
-            masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
-            tolerance = self.config.ego_tolerance
-            if motion_gap(masked, state.base_ego) <= tolerance or (
-                    state.prior is not None
-                    and self.nearer_prior(masked, state.base_ego, state.prior, float(np.mean(dynamic)))):
-                state.ego = masked
-        return state.ego
+        return state.base_ego
+
+    def plausible(self, motion: np.ndarray, prior: np.ndarray, dynamic_share: float) -> bool:
+        """Whether a motion is a change of the previous pair's that a vehicle can make in dt (ego_max_accel), aligned
+        while the mask leaves most of the points to it (ego_mask_share)."""
+        return (motion_gap(motion, prior) <= self.config.ego_max_accel * self.config.dt ** 2
+                and dynamic_share <= self.config.ego_mask_share)
 
     def nearer_prior(self, masked: np.ndarray, base: np.ndarray, prior: np.ndarray, dynamic_share: float = 0.0) -> bool:
         """Whether the alignment without the mask's dynamic points lies nearer the previous pair's motion than the one
         with every point by more than ego_tolerance, or is alone in being a change a vehicle can make in dt while the
         mask leaves most of the points to it (`dynamic_share`: the share it calls dynamic)."""
-        plausible = self.config.ego_max_accel * self.config.dt ** 2  # m, over the 1 m radius of motion_gap
-        to_masked, to_base = motion_gap(masked, prior), motion_gap(base, prior)
-        alone_plausible = to_masked <= plausible < to_base and dynamic_share <= self.config.ego_mask_share
-        return to_masked + self.config.ego_tolerance < to_base or alone_plausible
+        alone_plausible = self.plausible(masked, prior, dynamic_share) and not self.plausible(base, prior, 0.0)
+        return motion_gap(masked, prior) + self.config.ego_tolerance < motion_gap(base, prior) or alone_plausible
 
 
 class Plan:
