@@ -48,11 +48,30 @@ class AgentStates:
 
     def poses(self) -> np.ndarray:
         """World <- agent transforms (N, 4, 4)."""
-        poses = np.tile(np.eye(4), (len(self.ids), 1, 1))
-        cos, sin = np.cos(self.yaw), np.sin(self.yaw)
-        poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = cos, -sin, sin, cos
-        poses[:, :3, 3] = self.position
-        return poses
+        return planar_poses(self.position, self.yaw)
+
+    @staticmethod
+    def empty() -> AgentStates:
+        """No agents."""
+        return AgentStates(np.zeros(0, np.int32), np.zeros(0, np.uint8), np.zeros((0, 3)), np.zeros(0), np.zeros((0, 2)),
+                           np.zeros(0), np.zeros((0, 3)))
+
+
+def planar_poses(position: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """World <- agent transforms (N, 4, 4) of agents at positions (N, 3) turned by yaw (N,) about z."""
+    poses = np.tile(np.eye(4), (len(yaw), 1, 1))
+    cos, sin = np.cos(yaw), np.sin(yaw)
+    poses[:, 0, 0], poses[:, 0, 1], poses[:, 1, 0], poses[:, 1, 1] = cos, -sin, sin, cos
+    poses[:, :3, 3] = position
+    return poses
+
+
+def template_scales(states: AgentStates) -> np.ndarray:
+    """(N, 3) scale of each agent's template: a vehicle's box is its size, a pedestrian's unit cylinder gets the
+    radius half its diameter."""
+    people = states.kind == AgentKind.PEDESTRIAN
+    return np.where(people[:, None], np.c_[states.size[:, :1] / 2, states.size[:, :1] / 2, states.size[:, 2]],
+                    states.size)
 
 
 @dataclass(frozen=True)
@@ -71,19 +90,14 @@ def agent_mesh(states: AgentStates, centre: np.ndarray, radius: float):
     near = np.linalg.norm(states.position[:, :2] - centre, axis=1) <= radius + 3.0
     vehicles = np.flatnonzero(near & (states.kind == AgentKind.VEHICLE))
     people = np.flatnonzero(near & (states.kind == AgentKind.PEDESTRIAN))
-    size = states.size
+    scales = template_scales(states)
     return TriangleSoup.merge(
         [
             instances(
-                BOX, size[vehicles], states.yaw[vehicles], states.position[vehicles], PointClass.VEHICLE, vehicles
+                BOX, scales[vehicles], states.yaw[vehicles], states.position[vehicles], PointClass.VEHICLE, vehicles
             ),
             instances(
-                CYLINDER,
-                np.c_[size[people, :1] / 2, size[people, :1] / 2, size[people, 2]],
-                states.yaw[people],
-                states.position[people],
-                PointClass.PEDESTRIAN,
-                people,
+                CYLINDER, scales[people], states.yaw[people], states.position[people], PointClass.PEDESTRIAN, people
             ),
         ]
     )

@@ -1,4 +1,9 @@
-"""Exact per-point scene flow for scan t (FlowNet3D / Argoverse 2 convention, ego motion included)."""
+"""Exact per-point scene flow for scan t (FlowNet3D / Argoverse 2 convention, ego motion included).
+
+A point is taken at its own `time` (s relative to the stamp, 0 for an instant sweep), in the sensor frame of that
+moment. Its flow goes to where the same surface point is one period later, in the sensor frame of that moment: the
+same time in the next sweep, when the sensor fires the same column again.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim_bridge.sweep import Sweep
 from ssf_common.geometry.se3 import relative_pose
 
 MOVING_THRESHOLD = 1e-4
@@ -15,36 +21,46 @@ MOVING_THRESHOLD = 1e-4
 class FlowTruth:
     """Ground truth for the points of scan t: pc_t + flow lies on the surfaces seen at t+1."""
 
-    flow: np.ndarray  # (N, 3) float32, sensor frame of scan t
-    dynamic: np.ndarray  # (N,) bool, point on an agent that moved between t and t+1
+    flow: np.ndarray  # (N, 3) float32, sensor frame of scan t+1 at each point's time, minus the point
+    dynamic: np.ndarray  # (N,) bool, point on an agent that moved between its time and one period later
 
 
-def scene_flow(
-    points: np.ndarray,
-    instance: np.ndarray,
-    pose_t: np.ndarray,
-    pose_next: np.ndarray,
-    agent_poses_t: np.ndarray,
-    agent_poses_next: np.ndarray,
-) -> FlowTruth:
-    """Flow of scan-t points: static p -> T.p - p; a point on agent k also carries k's rigid motion.
+def scene_flow(points: np.ndarray, instance: np.ndarray, time: np.ndarray, sweep: Sweep, following: Sweep) -> FlowTruth:
+    """Flow of the points of a sweep: static p -> T(t).p - p with T(t) the sensor's motion over one period from the
+    point's time t; a point on agent k also carries k's rigid motion over that period.
 
-    instance holds agent index + 1 (0 = static); agent poses are world <- agent (M, 4, 4) at t and t+1.
-    """
+    instance holds agent index + 1 (0 = static); time is each point's, s relative to its sweep's stamp."""
     p = points.astype(np.float64)
-    to_next = relative_pose(pose_t, pose_next)
-    flow = np.einsum("ij,kj->ik", p, to_next[:3, :3]) + to_next[:3, 3] - p  # einsum: BLAS threads stall after Open3D
+    times, slot_of_time = np.unique(np.asarray(time, np.float32), return_inverse=True)  # a column's points share one
+    times = times.astype(np.float64)
+    sensor_t, sensor_next = sweep.sensor_poses(times), following.sensor_poses(times)
+    to_next = relative_pose(sensor_t, sensor_next)  # (T, 4, 4) sensor at t -> sensor one period later
+    if len(times) == 1:  # einsum, not @: BLAS threads stall after Open3D
+        flow = np.einsum("ij,kj->ik", p, to_next[0, :3, :3]) + to_next[0, :3, 3] - p
+    else:
+        flow = _apply_each(to_next, slot_of_time, p) - p
     dynamic = np.zeros(len(p), bool)
     on_agent = np.flatnonzero(instance > 0)
     if len(on_agent):
-        agent = instance[on_agent] - 1
-        used = np.unique(agent)
-        motion = agent_poses_next[used] @ np.linalg.inv(agent_poses_t[used])  # world_t -> world_{t+1}
-        sensor_motion = np.linalg.inv(pose_next) @ motion @ pose_t  # sensor_t -> sensor_{t+1}, per agent
-        slot = np.searchsorted(used, agent)
+        key = (instance[on_agent].astype(np.int64) - 1) * len(times) + slot_of_time[on_agent]
+        used, slot = np.unique(key, return_inverse=True)  # one (agent, time) per row
+        agent, at = used // len(times), used % len(times)
+        motion = following.agent_poses(agent, times[at]) @ np.linalg.inv(sweep.agent_poses(agent, times[at]))
+        sensor_motion = np.linalg.inv(sensor_next[at]) @ motion @ sensor_t[at]  # sensor_t -> sensor_{t+1}, per row
         q = p[on_agent]
         moved_points = np.einsum("nij,nj->ni", sensor_motion[slot, :3, :3], q) + sensor_motion[slot, :3, 3]
         flow[on_agent] = moved_points - q
         moved = np.abs(motion - np.eye(4)).max(axis=(1, 2)) > MOVING_THRESHOLD
         dynamic[on_agent] = moved[slot]
     return FlowTruth(flow.astype(np.float32), dynamic)
+
+
+def _apply_each(transforms: np.ndarray, slot: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """transforms[slot[n]] applied to points[n] (N, 3), one component at a time (no (N, 3, 3) gather)."""
+    rotation, translation = transforms[:, :3, :3], transforms[:, :3, 3]
+    out = np.empty_like(points)
+    for axis in range(3):
+        row = rotation[:, axis][slot]
+        out[:, axis] = row[:, 0] * points[:, 0] + row[:, 1] * points[:, 1] + row[:, 2] * points[:, 2]
+        out[:, axis] += translation[slot, axis]
+    return out

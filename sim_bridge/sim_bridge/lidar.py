@@ -1,8 +1,13 @@
-"""Spinning multi-beam LiDARs by ray casting (Open3D): static scene built once, moving agents per frame.
+"""Spinning multi-beam LiDARs by ray casting (Open3D): static scene built once, moving agents per sweep.
 
-One sweep is cast from the pose at its stamp (no motion distortion within the sweep; `time` says when each column
-would fire). Every sensor model is a set of rays (origin and direction in the `lidar` frame, ring, column) built
-from its datasheet layout; a rig of several sensors casts each from its own origin into one merged cloud.
+An instant sweep (`lidar.rolling_shutter: false`, the default) is cast whole from the pose at its stamp against the
+agents there; every point's `time` is 0. With a rolling shutter each column fires at its own time within the
+period (SensorSpec.column_times: clockwise from behind, the last column at the stamp, which marks the sweep's end),
+from where the sensor is then, against every agent where it is then (agent_rays.py; the motion within a sweep is
+sweep.py's); `time` is that firing time, s relative to the stamp, and each point is in the sensor frame of its own
+time, as a driver reports it (not deskewed). Every sensor model is a set of rays (origin and direction in the
+`lidar` frame, ring, column) built from its datasheet layout; a rig of several sensors casts each from its own
+origin into one merged cloud.
 
 Sensor effects: Gaussian range noise, random dropout of returns, and mixed points at depth edges. A beam next to
 a depth edge (its neighbour in the same ring hits a surface MIXED_GAP[0] to MIXED_GAP[1] metres nearer or
@@ -20,9 +25,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sim_bridge.meshes import TriangleSoup
+from sim_bridge.agent_rays import AgentHits, MovingAgentCaster
+from sim_bridge.agents import AgentStates, agent_mesh
+from sim_bridge.meshes import TriangleSoup, import_open3d, raycasting_scene
 from sim_bridge.scenario import LidarConfig
 from sim_bridge.sensors import SensorSpec
+from sim_bridge.sweep import Sweep
 from sim_bridge.world import PointClass
 
 REFLECTIVITY = np.array([0.25, 0.45, 0.6, 0.3, 0.8, 0.8, 0.35], np.float32)  # indexed by PointClass
@@ -36,7 +44,7 @@ class Scan:
     points: np.ndarray  # (N, 3) float32, sensor frame
     intensity: np.ndarray  # (N,) float32, 0..255
     ring: np.ndarray  # (N,) uint16, beam of its sensor, 0 = that sensor's lowest beam
-    time: np.ndarray  # (N,) float32, firing time offset within the sweep, s
+    time: np.ndarray  # (N,) float32, firing time, s relative to the stamp (the sweep's end): <= 0, all 0 if instant
     label: np.ndarray  # (N,) uint8 PointClass
     instance: np.ndarray  # (N,) int32 agent instance id, 0 for static surfaces
     sensor: np.ndarray | None = None  # (N,) uint8 sensor of a rig that took the point (None: a single sensor)
@@ -52,24 +60,6 @@ def empty_scan() -> Scan:
                 np.zeros(0, np.uint8), np.zeros(0, np.int32))
 
 
-def _import_open3d():
-    import open3d as o3d
-
-    return o3d
-
-
-def raycasting_scene(soup: TriangleSoup):
-    """An Open3D RaycastingScene holding one triangle soup (one geometry)."""
-    o3d = _import_open3d()
-    scene = o3d.t.geometry.RaycastingScene(nthreads=0)
-    if len(soup.triangles):
-        scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(soup.vertices, np.float32)),
-            o3d.core.Tensor(np.ascontiguousarray(soup.triangles, np.uint32)),
-        )
-    return scene
-
-
 @dataclass(frozen=True)
 class RayFan:
     """Every ray of one sweep in the lidar frame, sensor by sensor, beam by beam, column by column."""
@@ -78,7 +68,8 @@ class RayFan:
     directions: np.ndarray  # (R, 3) float32 unit vectors
     ring: np.ndarray  # (R,) uint16
     sensor: np.ndarray | None  # (R,) uint8, None for a single sensor
-    time: np.ndarray  # (R,) float32
+    time: np.ndarray  # (R,) float32, firing time, s relative to the stamp
+    column_time: np.ndarray  # (columns,) float32, the firing time of each column
     left: np.ndarray  # (R,) index of the previous column's ray in the same ring (wrapping)
     right: np.ndarray  # (R,) index of the next column's ray in the same ring (wrapping)
 
@@ -97,15 +88,16 @@ def ray_fan(spec: SensorSpec) -> RayFan:
     origins = None if at_origin else np.repeat(np.stack([m[:3, 3] for m in mounts]), per_sensor, 0).astype(np.float32)
     ring = np.tile(np.repeat(np.arange(beams, dtype=np.uint16), columns), spec.sensors)
     sensor = None if spec.sensors == 1 else np.repeat(np.arange(spec.sensors, dtype=np.uint8), per_sensor)
-    time = np.tile((np.arange(columns) / columns * spec.period).astype(np.float32), beams * spec.sensors)
+    column_time = spec.column_times().astype(np.float32)
+    time = np.tile(column_time, beams * spec.sensors)
     row_start = np.arange(spec.rays) // columns * columns
     column = np.arange(spec.rays) - row_start
-    return RayFan(origins, directions.astype(np.float32), ring, sensor, time,
+    return RayFan(origins, directions.astype(np.float32), ring, sensor, time, column_time,
                   row_start + (column - 1) % columns, row_start + (column + 1) % columns)
 
 
 class Lidar:
-    """A spinning LiDAR (or rig) that casts its rays against a static and a per-frame dynamic scene."""
+    """A spinning LiDAR (or rig) that casts its rays against a static scene and the agents of each sweep."""
 
     def __init__(self, cfg: LidarConfig, static: TriangleSoup):
         self.cfg = cfg
@@ -116,30 +108,20 @@ class Lidar:
         self.time = self.rays.time
         self.static = static
         self._static_scene = raycasting_scene(static)
+        self._moving_agents = MovingAgentCaster(self.spec.max_range) if self.spec.rolling_shutter else None
 
-    def scan(self, pose: np.ndarray, dynamic: TriangleSoup, rng: np.random.Generator) -> Scan:
-        """Cast every beam from pose (world <- lidar), nearest hit of static and dynamic geometry, sensor effects."""
-        o3d = _import_open3d()
+    def scan(self, sweep: Sweep, rng: np.random.Generator) -> Scan:
+        """Cast every beam from where the sensor is when it fires, nearest hit of the static scene and the agents where
+        they are then, sensor effects."""
+        o3d = import_open3d()
         spec, fan = self.spec, self.rays
-        rotation = pose[:3, :3].astype(np.float32)
-        # einsum, not @: BLAS worker threads stall for tens of ms right after Open3D's parallel ray casts
-        world_dirs = np.einsum("ij,kj->ik", fan.directions, rotation)
-        rays = np.empty((len(world_dirs), 6), np.float32)
-        rays[:, :3] = pose[:3, 3]
-        if fan.origins is not None:
-            rays[:, :3] += np.einsum("ij,kj->ik", fan.origins, rotation)
-        rays[:, 3:] = world_dirs
+        rays = self._world_rays(sweep)
         rays_tensor = o3d.core.Tensor(rays)
         hit_static = self._static_scene.cast_rays(rays_tensor)
+        agents = self._cast_agents(sweep, rays, rays_tensor)
         distance = hit_static["t_hit"].numpy()
-        hit_dynamic = None
-        if len(dynamic.triangles):
-            hit_dynamic = raycasting_scene(dynamic).cast_rays(rays_tensor)
-            distance_dynamic = hit_dynamic["t_hit"].numpy()
-            from_dynamic = distance_dynamic < distance
-            distance = np.minimum(distance, distance_dynamic)
-        else:
-            from_dynamic = np.zeros(len(rays), bool)
+        from_agent = agents.distance < distance
+        distance = np.minimum(distance, agents.distance)
         surface, distance, mixed = self._mix_edges(distance, rng)
         keep = (distance <= spec.max_range) & (distance >= spec.min_range)
         if spec.dropout > 0:
@@ -150,17 +132,17 @@ class Lidar:
             noise = rng.standard_normal(len(index), dtype=np.float32)
             distance = np.maximum(distance + np.float32(spec.range_noise) * noise, np.float32(0.0))
         hit = index if surface is None else surface[index]  # the ray whose surface each point belongs to
-        dynamic_hit = from_dynamic[hit]
-        label = self.static.labels[np.where(dynamic_hit, 0, hit_static["primitive_ids"].numpy()[hit])]
+        agent_hit = from_agent[hit]
+        label = np.zeros(len(index), np.uint8)
+        label[~agent_hit] = self.static.labels[hit_static["primitive_ids"].numpy()[hit[~agent_hit]]]
         owner = np.full(len(index), -1, np.int32)
         normals = hit_static["primitive_normals"].numpy()[hit]
-        if dynamic_hit.any():
-            which = hit[dynamic_hit]
-            triangle = hit_dynamic["primitive_ids"].numpy()[which]
-            label[dynamic_hit] = dynamic.labels[triangle]
-            owner[dynamic_hit] = dynamic.owners[triangle]
-            normals[dynamic_hit] = hit_dynamic["primitive_normals"].numpy()[which]
-        incidence = np.abs(np.einsum("ij,ij->i", normals, world_dirs[index]))
+        if agent_hit.any():
+            which = hit[agent_hit]
+            label[agent_hit] = agents.label[which]
+            owner[agent_hit] = agents.owner[which]
+            normals[agent_hit] = agents.normal[which]
+        incidence = np.abs(np.einsum("ij,ij->i", normals, rays[index, 3:]))
         falloff = np.clip(np.float32(1.5) - distance / np.float32(2 * spec.max_range), 0.0, 1.0)
         intensity = np.float32(255.0) * REFLECTIVITY[label] * (np.float32(0.3) + np.float32(0.7) * incidence) * falloff
         points = fan.directions[index] * distance[:, None]
@@ -176,6 +158,52 @@ class Lidar:
             None if fan.sensor is None else fan.sensor[index],
             None if mixed is None else mixed[index],
         )
+
+    def _world_rays(self, sweep: Sweep) -> np.ndarray:
+        """(R, 6) float32 world rays, origin then unit direction, of every beam from where the sensor is when it
+        fires."""
+        fan = self.rays
+        rays = np.empty((len(fan.directions), 6), np.float32)
+        if not self.spec.rolling_shutter:
+            rotation = sweep.pose[:3, :3].astype(np.float32)
+            # einsum, not @: BLAS worker threads stall for tens of ms right after Open3D's parallel ray casts
+            rays[:, 3:] = np.einsum("ij,kj->ik", fan.directions, rotation)
+            rays[:, :3] = sweep.pose[:3, 3]
+            if fan.origins is not None:
+                rays[:, :3] += np.einsum("ij,kj->ik", fan.origins, rotation)
+            return rays
+        columns = len(fan.column_time)
+        poses = sweep.sensor_poses(fan.column_time)  # one pose per column: its firing time
+        rotation = poses[:, :3, :3].astype(np.float32)
+        by_column = rays.reshape(-1, columns, 6)  # rows (sensor, beam) x columns
+        by_column[:, :, 3:] = _rotate_columns(rotation, fan.directions.reshape(-1, columns, 3))
+        by_column[:, :, :3] = poses[:, :3, 3]
+        if fan.origins is not None:
+            by_column[:, :, :3] += _rotate_columns(rotation, fan.origins.reshape(-1, columns, 3))
+        return rays
+
+    def _cast_agents(self, sweep: Sweep, rays: np.ndarray, rays_tensor) -> AgentHits:
+        """The nearest agent along each ray: exactly where each agent is when the ray fires (rolling shutter), or
+        all of them at the stamp in one scene."""
+        if self._moving_agents is not None:
+            return self._moving_agents.cast(sweep, rays, self.rays.time)
+        return self._cast_agent_mesh(sweep.agents, sweep.pose, rays_tensor, len(rays))
+
+    def _cast_agent_mesh(self, agents: AgentStates, pose: np.ndarray, rays_tensor, count: int) -> AgentHits:
+        """Every ray against the agents' triangles within range of pose."""
+        hits = AgentHits.none(count)
+        dynamic = agent_mesh(agents, pose[:2, 3], self.spec.max_range)
+        if not len(dynamic.triangles):
+            return hits
+        cast = raycasting_scene(dynamic).cast_rays(rays_tensor)
+        distance = cast["t_hit"].numpy()
+        met = np.flatnonzero(np.isfinite(distance))
+        triangle = cast["primitive_ids"].numpy()[met]
+        hits.distance[met] = distance[met]
+        hits.owner[met] = dynamic.owners[triangle]
+        hits.label[met] = dynamic.labels[triangle]
+        hits.normal[met] = cast["primitive_normals"].numpy()[met]
+        return hits
 
     def _mix_edges(self, distance: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray | None, np.ndarray, np.ndarray | None]:
         """Mixed returns at depth edges: per ray, the ray whose surface it belongs to, its range, and the mixed flag.
@@ -198,9 +226,19 @@ class Lidar:
         return surface, distance, mixed
 
 
+def _rotate_columns(rotation: np.ndarray, vectors: np.ndarray) -> np.ndarray:
+    """rotation[c] @ vectors[r, c] for rotations (C, 3, 3) and vectors (rows, C, 3), one component at a time (several
+    times faster than einsum here, and no BLAS)."""
+    out = np.empty_like(vectors)
+    for axis in range(3):
+        out[..., axis] = (rotation[:, axis, 0] * vectors[..., 0] + rotation[:, axis, 1] * vectors[..., 1]
+                          + rotation[:, axis, 2] * vectors[..., 2])
+    return out
+
+
 def surface_distance(soup: TriangleSoup, points_world: np.ndarray) -> np.ndarray:
     """Unsigned distance from world points to a triangle soup."""
-    o3d = _import_open3d()
+    o3d = import_open3d()
     return raycasting_scene(soup).compute_distance(o3d.core.Tensor(points_world.astype(np.float32))).numpy()
 
 

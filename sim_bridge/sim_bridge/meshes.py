@@ -144,3 +144,22 @@ def instances(
     labels = np.broadcast_to(np.asarray(label, np.uint8), (count,)).repeat(per)
     owner = np.full(count, -1, np.int32) if owners is None else owners.astype(np.int32)
     return TriangleSoup(world.reshape(-1, 3).astype(np.float32), triangles.astype(np.uint32), labels, owner.repeat(per))
+
+
+def import_open3d():
+    """Open3D, imported on first use (it takes a while to load)."""
+    import open3d as o3d
+
+    return o3d
+
+
+def raycasting_scene(soup: TriangleSoup):
+    """An Open3D RaycastingScene holding one triangle soup (one geometry)."""
+    o3d = import_open3d()
+    scene = o3d.t.geometry.RaycastingScene(nthreads=0)
+    if len(soup.triangles):
+        scene.add_triangles(
+            o3d.core.Tensor(np.ascontiguousarray(soup.vertices, np.float32)),
+            o3d.core.Tensor(np.ascontiguousarray(soup.triangles, np.uint32)),
+        )
+    return scene

@@ -113,6 +113,9 @@ class LidarConfig(Section):
     mixed_points: float = Field(0.0, ge=0.0, le=1.0, description="probability that a beam whose footprint straddles "
                                 "a depth edge returns one merged echo: a point between the two surfaces")
     mount_height: float = Field(1.8, ge=0.5, le=5.0)
+    rolling_shutter: bool = Field(False, description="each column fires at its own time within the sweep, from where "
+                                  "the ego is then, at the agents where they are then (the stamp marks the sweep's "
+                                  "end; `time` per point, s, <= 0); false: the whole sweep at the stamp (time 0)")
     frame_id: str = "lidar"
 
     @model_validator(mode="after")
@@ -149,6 +152,7 @@ class LidarConfig(Section):
             mixed_points=self.mixed_points,
             divergence_mrad=model.divergence_mrad,
             mounts=model.mounts,
+            rolling_shutter=self.rolling_shutter,
         )
 
 

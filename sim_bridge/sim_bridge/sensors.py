@@ -133,6 +133,7 @@ class SensorSpec:
     mixed_points: float
     divergence_mrad: float
     mounts: tuple[Mount, ...]
+    rolling_shutter: bool = False  # columns fire across the period (see sweep.py), not all at the stamp
 
     @property
     def beams(self) -> int:
@@ -155,6 +156,15 @@ class SensorSpec:
         the azimuth step, on either side of the beam (the edge lies anywhere between two columns)."""
         return min(1.0, self.divergence_mrad * 1e-3 / 2 / (2 * np.pi / self.columns))
 
+    def column_times(self) -> np.ndarray:
+        """(columns,) firing time of each column, s relative to the stamp: all 0 for an instant sweep; else clockwise
+        from behind (as Velodyne and Ouster spin, KITTI's seam), one column every period / columns, the last at 0."""
+        columns = self.columns
+        if not self.rolling_shutter:
+            return np.zeros(columns)
+        order = (columns // 2 - np.arange(columns)) % columns  # column c looks at azimuth 2 pi c / columns
+        return (order - (columns - 1)) * (self.period / columns)
+
     @property
     def rays(self) -> int:
         """Rays cast per sweep, all sensors together."""
@@ -168,6 +178,7 @@ class SensorSpec:
             "elevation_max_deg": float(self.elevations[-1]), "min_range": self.min_range, "max_range": self.max_range,
             "range_noise": self.range_noise, "dropout": self.dropout, "mixed_points": self.mixed_points,
             "divergence_mrad": self.divergence_mrad, "edge_straddle_share": self.straddle_share,
+            "rolling_shutter": self.rolling_shutter,
             "mounts": [{"position": list(m.position), "rotation_deg": list(m.rotation)} for m in self.mounts],
         }  # fmt: skip
 

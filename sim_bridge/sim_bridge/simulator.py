@@ -15,6 +15,7 @@ from sim_bridge.footprints import Rectangles, rectangle_circle_distance, rectang
 from sim_bridge.ground_truth import FlowTruth, scene_flow
 from sim_bridge.lidar import Lidar, Scan, empty_scan
 from sim_bridge.scenario import OdometerConfig, Scenario
+from sim_bridge.sweep import Sweep
 from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint, agent_mesh
 from sim_bridge.traffic import Traffic
 from sim_bridge.world import PointClass, World
@@ -73,6 +74,7 @@ class Frame:
     base_pose: np.ndarray  # (4, 4) world <- base_link
     ego: EgoState
     agents: AgentStates
+    sweep: Sweep  # where the sensor and the agents were while the scan was taken (it ends at the stamp)
     status: EpisodeStatus
     truth: Callable[[], FlowTruth | None] = field(default=lambda: None, repr=False, compare=False)  # makes `flow`
     measured: MeasuredMotion | None = None  # the step that ended here, as the odometer saw it (None on the first)
@@ -241,13 +243,15 @@ class Simulator:
         base = self.ego.base_pose()
         pose = base @ self.mount
         agents = self.traffic.states()
+        period = self.lidar.spec.period
+        sweep = Sweep.still(pose, agents, period) if previous is None else Sweep(period, previous.pose, pose,
+                                                                                   previous.agents, agents)
         if not self.scans:  # the scan's noise has a generator of its own: skipping scans changes nothing else
             scan = empty_scan()
         else:
-            scan = self.lidar.scan(pose, agent_mesh(agents, pose[:2, 3], self.lidar.spec.max_range), self._noise)
+            scan = self.lidar.scan(sweep, self._noise)
         truth = (lambda: None) if previous is None or not self.scans else partial(
-            scene_flow, previous.scan.points, previous.scan.instance, previous.pose, pose, previous.agents.poses(),
-            agents.poses())
+            scene_flow, previous.scan.points, previous.scan.instance, previous.scan.time, previous.sweep, sweep)
         state = self.ego.state
         self.log.trajectory.append((state.x, state.y))
         elapsed = self.index * self.dt
@@ -259,8 +263,8 @@ class Simulator:
             float(self.min_clearance),
             self.collided_with,
         )
-        return Frame(self.index, int(round(self.index * self.dt * 1e9)), scan, pose, base, state, agents, status, truth,
-                     measured)
+        return Frame(self.index, int(round(self.index * self.dt * 1e9)), scan, pose, base, state, agents, sweep, status,
+                     truth, measured)
 
     def agent_surfaces(self, agents: AgentStates):
         """Triangles of every agent (for checking ground truth against surfaces)."""

@@ -61,6 +61,7 @@ def bad_scenario_files(tmp_path):
         (["--scenario", "empty", "-p", "agents.count=-4"], "agents.count"),
         (["--scenario", "empty", "--set", "agents.count=[1,"], "-p agents.count: not valid YAML"),  # --set is -p
         (["--scenario", "empty", "-p", "agents.count:="], "-p agents.count: the value is empty"),
+        (["--scenario", "empty", "-p", "lidar.rolling_shutter:=sometimes"], "lidar.rolling_shutter"),
         (["--scenario", "empty", "-p", "route.waypoints:=[[0,0],[.nan,0]]"], "route.waypoints.1.0"),
         (["--scenario", "empty", "-p", "route.waypoints:=[[0,0],[1e30,0]]"], "more than 4000000"),
         (["--scenario", "empty", "--seed", "-7"], "--seed must be an integer from 0 to 4294967295, got -7"),

@@ -16,6 +16,7 @@ from sim_bridge.ros_messages import scan_cloud
 from sim_bridge.scenario import load_scenario
 from sim_bridge.sensors import SENSOR_MODELS, sensor_names
 from sim_bridge.simulator import Simulator
+from sim_bridge.sweep import Sweep
 from ssf_common.errors import ConfigError
 from ssf_common.geometry.se3 import transform_points
 from ssf_common.pointcloud import cloud_to_array
@@ -74,11 +75,14 @@ def test_the_roof_rig_has_two_origins_and_fifty_degrees_together():
     ("os1_128", 10, 1024), ("os1_128", 20, 1024), ("roof_2x32", 10, 1800),
 ])  # fmt: skip
 def test_the_rate_sets_columns_sweep_time_and_the_simulator_step(name, rate, columns):
-    scenario = load_scenario("empty", {"lidar.model": name, "lidar.rate_hz": rate})
+    scenario = load_scenario("empty", {"lidar.model": name, "lidar.rate_hz": rate, "lidar.rolling_shutter": True})
     spec = scenario.lidar.spec()
     assert spec.columns == columns and scenario.episode.dt == pytest.approx(1.0 / rate)
     fan = ray_fan(spec)
-    assert fan.time.min() == 0.0 and fan.time.max() == pytest.approx((columns - 1) / columns / rate, rel=1e-5)
+    assert fan.time.max() == 0.0 and fan.time.min() == pytest.approx(-(columns - 1) / columns / rate, rel=1e-5)
+    steps = np.diff(np.sort(fan.column_time))
+    np.testing.assert_allclose(steps, 1.0 / rate / columns, rtol=1e-3)  # one column every period / columns
+    assert not ray_fan(load_scenario("empty", {"lidar.model": name, "lidar.rate_hz": rate}).lidar.spec()).time.any()
 
 
 def test_rates_and_steps_that_do_not_fit_are_refused_in_one_line():
@@ -117,7 +121,7 @@ def test_a_scan_has_every_ring_and_a_plausible_point_count(scans, name):
     per_sensor = [scan.ring] if scan.sensor is None else [scan.ring[scan.sensor == k] for k in range(spec.sensors)]
     for rings in per_sensor:
         assert np.array_equal(np.unique(rings), np.arange(spec.beams))
-    assert scan.time.min() >= 0.0 and scan.time.max() < spec.period
+    assert not scan.time.any()  # an instant sweep: every point at the stamp
     assert (scan.instance > 0).sum() > 20  # agents are seen
     cloud = cloud_to_array(scan_cloud(scan, frame.stamp_ns))
     expected = ["x", "y", "z", "intensity", "ring", "time"] + (["sensor"] if spec.sensors > 1 else [])
@@ -145,9 +149,9 @@ def street(small_scenario):
 
 
 def sweep(street, **overrides):
-    sim, pose, dynamic, _ = street
+    sim, pose, _, agents = street
     cfg = sim.scenario.lidar.model_copy(update=overrides)
-    return Lidar(cfg, sim.lidar.static).scan(pose, dynamic, np.random.default_rng(5))
+    return Lidar(cfg, sim.lidar.static).scan(Sweep.still(pose, agents, cfg.spec().period), np.random.default_rng(5))
 
 
 def test_dropout_loses_that_share_of_returns(street):

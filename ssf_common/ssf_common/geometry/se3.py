@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 
 def make_pose(x: float = 0.0, y: float = 0.0, z: float = 0.0, yaw: float = 0.0) -> np.ndarray:
@@ -48,6 +49,51 @@ def invert(transform: np.ndarray) -> np.ndarray:
 def relative_pose(pose1: np.ndarray, pose2: np.ndarray) -> np.ndarray:
     """pose2^-1 pose1 for world <- sensor poses: maps scan-t coordinates of static points into scan t+1's frame."""
     return np.linalg.inv(np.asarray(pose2, dtype=np.float64)) @ np.asarray(pose1, dtype=np.float64)
+
+
+def interpolate_poses(start: np.ndarray, end: np.ndarray, shares: np.ndarray) -> np.ndarray:
+    """Poses (K, 4, 4) at `shares` of a constant-twist (screw) motion from start (0) to end (1); exact at 1.
+
+    A unicycle's arc at constant speed and yaw rate is such a motion; so is KISS-ICP's constant-velocity deskew."""
+    end = np.asarray(end, dtype=np.float64)
+    back = invert(end) @ np.asarray(start, dtype=np.float64)  # end -> start, in the end's frame
+    rotation_vector = Rotation.from_matrix(back[:3, :3]).as_rotvec()
+    left_jacobian = _so3_left_jacobian(rotation_vector[None])[0]
+    translation_twist = np.linalg.solve(left_jacobian, back[:3, 3])
+    remaining = 1.0 - np.asarray(shares, dtype=np.float64).reshape(-1, 1)  # of the way back from the end
+    return end @ exp_twists(remaining * rotation_vector, remaining * translation_twist)
+
+
+def exp_twists(rotation_vectors: np.ndarray, translation_twists: np.ndarray) -> np.ndarray:
+    """SE(3) exponentials (K, 4, 4) of twists given as rotation vectors (K, 3) and translation parts (K, 3)."""
+    rotation_vectors = np.asarray(rotation_vectors, dtype=np.float64)
+    skew = _skew(rotation_vectors)
+    angle = np.linalg.norm(rotation_vectors, axis=1)[:, None, None]
+    small = angle < 1e-6
+    safe = np.where(small, 1.0, angle)
+    sine = np.where(small, 1.0 - angle**2 / 6.0, np.sin(safe) / safe)
+    cosine = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    rotation = np.eye(3) + sine * skew + cosine * (skew @ skew)
+    translation = np.einsum("kij,kj->ki", _so3_left_jacobian(rotation_vectors), translation_twists)
+    return from_rotation_translation(rotation, translation)
+
+
+def _so3_left_jacobian(rotation_vectors: np.ndarray) -> np.ndarray:
+    """V(w) = I + (1 - cos a) / a^2 [w] + (a - sin a) / a^3 [w]^2 for rotation vectors (K, 3): SE(3)'s t = V rho."""
+    skew = _skew(rotation_vectors)
+    angle = np.linalg.norm(rotation_vectors, axis=1)[:, None, None]
+    small = angle < 1e-6
+    safe = np.where(small, 1.0, angle)
+    first = np.where(small, 0.5 - angle**2 / 24.0, (1.0 - np.cos(safe)) / safe**2)
+    second = np.where(small, 1.0 / 6.0 - angle**2 / 120.0, (safe - np.sin(safe)) / safe**3)
+    return np.eye(3) + first * skew + second * (skew @ skew)
+
+
+def _skew(vectors: np.ndarray) -> np.ndarray:
+    """Cross-product matrices (K, 3, 3) of vectors (K, 3)."""
+    x, y, z = vectors[:, 0], vectors[:, 1], vectors[:, 2]
+    zero = np.zeros_like(x)
+    return np.stack([np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], 1)
 
 
 def yaw_of(transform: np.ndarray) -> float:
