@@ -16,8 +16,8 @@ from ssf_common.geometry.labels import (label_extents, label_main_axes, label_me
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, greedy_farthest_indices, grid_cells, sample_indices,
                                           voxel_indices)
-from ssf_common.geometry.se3 import (compose, invert, make_pose, relative_pose, rigid_flow, rotation_angle,
-                                     transform_points, yaw_of, yaw_translate)
+from ssf_common.geometry.se3 import (compose, exp_twists, interpolate_poses, invert, make_pose, relative_pose, rigid_flow,
+                                     rotation_angle, transform_points, yaw_of, yaw_translate)
 
 
 def random_transform(rng: np.random.Generator) -> np.ndarray:
@@ -41,6 +41,26 @@ def test_se3_by_hand():
     np.testing.assert_allclose(transform_points(ego, np.array([[10.0, 0, 0]])), [[9.0, 0, 0]])
     moved = yaw_translate(np.array([[1.0, 0, 0], [0, 1.0, 0]]), np.array([np.pi / 2, 0.0]), np.array([[0, 0, 1.0], [1, 0, 0]]))
     np.testing.assert_allclose(moved, [[0, 1, 1], [1, 1, 0]], atol=1e-12)
+
+
+def test_screw_interpolation_follows_an_arc_and_ends_exactly_at_the_end():
+    radius, turn = 20.0, 0.3  # a unicycle's arc: constant speed and yaw rate, then a 3D motion
+    start, end = make_pose(5.0, -1.0, 0.5, 0.2), compose(make_pose(5.0, -1.0, 0.5, 0.2),
+                                                     make_pose(radius * np.sin(turn), radius * (1 - np.cos(turn)), 0.0, turn))
+    shares = np.array([0.0, 0.25, 0.5, 1.0])
+    poses = interpolate_poses(start, end, shares)
+    assert np.array_equal(poses[-1], end)  # bit-exact at the end (an instant sweep's stamp)
+    np.testing.assert_allclose(poses[0], start, atol=1e-12)
+    for share, pose in zip(shares, poses):
+        on_arc = compose(start, make_pose(radius * np.sin(share * turn), radius * (1 - np.cos(share * turn)), 0.0,
+                                          share * turn))
+        np.testing.assert_allclose(pose, on_arc, atol=1e-12)
+    rng = np.random.default_rng(4)
+    a, b = random_transform(rng), random_transform(rng)
+    b[:3, :3] = a[:3, :3] @ Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()  # less than half a turn apart
+    halfway = interpolate_poses(a, b, np.array([0.5]))[0]
+    np.testing.assert_allclose(interpolate_poses(a, halfway, np.array([2.0]))[0], b, atol=1e-9)  # a constant twist
+    np.testing.assert_allclose(exp_twists(np.zeros((1, 3)), np.array([[1.0, 2.0, 3.0]]))[0], make_pose(1.0, 2.0, 3.0))
 
 
 def test_weighted_kabsch_recovers_a_motion_and_ignores_zero_weights():
