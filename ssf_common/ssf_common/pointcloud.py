@@ -13,6 +13,7 @@ import numpy as np
 
 from ssf_common import messages
 from ssf_common.errors import MessageError
+from ssf_common.scans.point_time import point_time
 
 POINTCLOUD2 = "sensor_msgs/msg/PointCloud2"
 POINTFIELD = "sensor_msgs/msg/PointField"
@@ -24,11 +25,15 @@ XYZ = ("x", "y", "z")
 
 
 class DecodedCloud(NamedTuple):
-    """A validated cloud: finite xyz, where those points sit in the message, and every field."""
+    """A validated cloud: finite xyz, where those points sit in the message, every field, and per-point time."""
 
     xyz: np.ndarray  # float32 (N, 3), points with finite coordinates only
     indices: np.ndarray  # int64 (N,), index of each kept point in `points`
     points: np.ndarray  # structured (height * width,), all fields of all points
+    time: np.ndarray | None = None  # float32 (N,) s relative to the header stamp, from a driver's time field
+    # (scans.point_time: velodyne `time`, ouster `t`, Hesai/nebula `timestamp`/`time_stamp`, Livox `offset_time`);
+    # None: no field, an instant sweep (all 0), or an unusable one
+    time_problem: str | None = None  # one line: why a time field the cloud has gives no time
 
 
 class WarningLogger(Protocol):
@@ -175,11 +180,19 @@ def decode_cloud(msg: Any) -> DecodedCloud:
         raise MessageError(f"PointCloud2 is empty (height {msg.height} × width {msg.width})")
     xyz = _xyz_view(organized).reshape(-1, 3)
     if np.isfinite(xyz).all():
-        return DecodedCloud(xyz, np.arange(len(xyz), dtype=np.int64), points)
+        return _with_time(msg, DecodedCloud(xyz, np.arange(len(xyz), dtype=np.int64), points), every_point=True)
     indices = np.flatnonzero(_finite_rows(xyz))
     if indices.size == 0:
         raise MessageError(f"PointCloud2 has no valid point: all {len(xyz)} points have NaN/Inf coordinates")
-    return DecodedCloud(xyz[indices], indices, points)
+    return _with_time(msg, DecodedCloud(xyz[indices], indices, points), every_point=False)
+
+
+def _with_time(msg: Any, decoded: DecodedCloud, every_point: bool) -> DecodedCloud:
+    """The decoded cloud with the per-point time of its kept points, relative to the header stamp."""
+    header = getattr(msg, "header", None)
+    stamp_ns = messages.stamp_ns(header.stamp) if header is not None else None
+    timing = point_time(decoded.points, decoded.xyz, stamp_ns, None if every_point else decoded.indices)
+    return decoded._replace(time=timing.time, time_problem=timing.problem)
 
 
 def decode_cloud_or_none(msg: Any, logger: WarningLogger, topic: str = "") -> DecodedCloud | None:

@@ -15,10 +15,13 @@ from sim_bridge.ego import EgoVehicle, VelocityCommand
 from sim_bridge.lidar import Lidar, ray_fan, surface_distance
 from sim_bridge.meshes import TriangleSoup
 from sim_bridge.node import SimBridgeNode
+from sim_bridge.ros_messages import scan_cloud
 from sim_bridge.scenario import LidarConfig, load_scenario
 from sim_bridge.simulator import Simulator
 from sim_bridge.sweep import Sweep
+from ssf_common import messages, pointcloud
 from ssf_common.geometry.se3 import make_pose, yaw_of
+from ssf_common.pointcloud import cloud_to_array
 
 WALL_X = 15.0
 SPEED = 10.0  # m/s along x
@@ -141,3 +144,18 @@ def test_rolling_shutter_is_a_scenario_setting_of_the_node_and_of_scenario_files
         assert node.sim.lidar.spec.summary()["rolling_shutter"] is True
     finally:
         node.destroy_node()
+
+
+def test_the_published_cloud_carries_each_points_time_and_reads_back(small_scenario):
+    for rolling in (False, True):
+        sim = Simulator(small_scenario(agents=10, **{"lidar.rolling_shutter": rolling}), seed=4)
+        sim.reset()
+        frame = sim.step(VelocityCommand(5.0, 0.0))
+        msg = messages.deserialize(messages.serialize(scan_cloud(frame.scan, frame.stamp_ns)), pointcloud.POINTCLOUD2)
+        cloud = pointcloud.decode_cloud(msg)
+        assert cloud.time_problem is None and cloud_to_array(msg)["time"].dtype == np.float32
+        if rolling:  # the velodyne_pointcloud layout: float32 s, <= 0, the stamp at the sweep's end
+            np.testing.assert_array_equal(cloud.time, frame.scan.time)
+            assert cloud.time.max() == 0.0 and cloud.time.min() < -0.09
+        else:  # every point at the stamp: no per-point time to deskew with, and nothing wrong with that
+            assert cloud.time is None and not cloud_to_array(msg)["time"].any()

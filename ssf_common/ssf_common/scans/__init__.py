@@ -3,7 +3,8 @@
 `read_points` returns every field of a file as a numpy structured array, bit for bit;
 `read_scan` returns the float32 (N, 3) or (N, 4) x, y, z[, intensity] that the cores use, without the points
 whose coordinates are not finite or lie beyond a plausibility bound (default 1 km), and reports how many it
-dropped. A file whose content is another format than its name says (a PCD renamed .bin) is refused.
+dropped; `read_scan_with_time` adds each kept point's time (point_time.py: a driver's time field, or the azimuth of
+a KITTI .bin). A file whose content is another format than its name says (a PCD renamed .bin) is refused.
 Malformed or truncated files raise DataError with one line that names the file and the problem.
 """
 
@@ -22,6 +23,7 @@ from ssf_common.scans.kitti_bin import read_kitti_bin, write_bin
 from ssf_common.scans.npy import read_npy
 from ssf_common.scans.pcd import PCD_ENCODINGS, lzf_compress, lzf_decompress, read_pcd, write_pcd
 from ssf_common.scans.ply import read_ply
+from ssf_common.scans.point_time import KITTI_PERIOD_S, PointTime, azimuth_time, point_time
 from ssf_common.scans.sniff import sniff
 
 __all__ = [
@@ -29,12 +31,18 @@ __all__ = [
     "PCD_ENCODINGS",
     "SUFFIXES",
     "XYZ",
+    "KITTI_PERIOD_S",
     "LoadedScan",
+    "PointTime",
+    "TimedScan",
+    "azimuth_time",
     "load_scan",
+    "point_time",
     "lzf_compress",
     "lzf_decompress",
     "read_points",
     "read_scan",
+    "read_scan_with_time",
     "sniff",
     "write_bin",
     "write_pcd",
@@ -58,6 +66,10 @@ class LoadedScan(NamedTuple):
     non_finite: int  # dropped: x, y or z NaN or infinite
     too_far: int  # dropped: |x|, |y| or |z| beyond the bound
     max_coordinate: float
+    time: np.ndarray | None = None  # float32 (N,) s per kept point, relative to the scan's stamp (for a KITTI .bin,
+    # derived from the azimuth: relative to when the sensor faced forward); None: no usable time
+    time_source: str = ""  # the time field read, "azimuth" for a KITTI .bin, "" when none
+    time_problem: str | None = None  # one line: why a time field the file has gives no time
 
     @property
     def dropped(self) -> int:
@@ -74,6 +86,13 @@ class LoadedScan(NamedTuple):
         if self.too_far:
             parts.append(f"{self.too_far} beyond {self.max_coordinate:g} m")
         return f"{source}: dropped {self.dropped} of {self.total} points ({', '.join(parts)})"
+
+
+class TimedScan(NamedTuple):
+    """A scan as the cores take it, with the time of each point when the file gives one."""
+
+    points: np.ndarray  # float32 (N, 3) x, y, z or (N, 4) with intensity
+    time: np.ndarray | None  # float32 (N,) s relative to the scan's stamp; None: no usable time
 
 
 def print_warning(text: str) -> None:
@@ -96,8 +115,26 @@ def read_scan(
     return loaded.points
 
 
-def load_scan(path: str | Path, *, max_coordinate: float = MAX_COORDINATE_M) -> LoadedScan:
-    """The scan of a file and the counts of points dropped as non-finite or beyond `max_coordinate` metres."""
+def read_scan_with_time(
+    path: str | Path,
+    *,
+    max_coordinate: float = MAX_COORDINATE_M,
+    sweep_period: float = KITTI_PERIOD_S,
+    warn: Callable[[str], None] | None = print_warning,
+) -> TimedScan:
+    """read_scan and each kept point's time (s, relative to the scan's stamp; a KITTI .bin's from its azimuth over
+    `sweep_period`); dropped points and an unusable time field reported through `warn`, one line each."""
+    loaded = load_scan(path, max_coordinate=max_coordinate, sweep_period=sweep_period)
+    for line in (loaded.report(path), loaded.time_problem and f"{path}: {loaded.time_problem}"):
+        if line and warn is not None:
+            warn(line)
+    return TimedScan(loaded.points, loaded.time)
+
+
+def load_scan(path: str | Path, *, max_coordinate: float = MAX_COORDINATE_M,
+              sweep_period: float = KITTI_PERIOD_S) -> LoadedScan:
+    """The scan of a file, the counts of points dropped as non-finite or beyond `max_coordinate` metres, and the time
+    of each kept point (a KITTI .bin's derived from its azimuth over `sweep_period` seconds)."""
     path = Path(path)
     if not (max_coordinate > 0):  # also refuses NaN
         raise DataError(f"max_coordinate must be a positive number of metres, got {max_coordinate!r}")
@@ -128,7 +165,15 @@ def load_scan(path: str | Path, *, max_coordinate: float = MAX_COORDINATE_M) -> 
         raise DataError(
             f"{path}: no point with finite x, y, z within {max_coordinate:g} m ({points.size} points in the file)"
         )
-    return LoadedScan(scan[keep], int(points.size), int((~finite).sum()), int((finite & ~near).sum()), max_coordinate)
+    kept = scan[keep]
+    if path.suffix.lower() == ".bin":
+        if not (0 < sweep_period <= 1):  # also refuses NaN
+            raise DataError(f"sweep_period must be a number of seconds in (0, 1], got {sweep_period!r}")
+        timing = PointTime(azimuth_time(kept[:, :3], sweep_period), "azimuth")
+    else:
+        timing = point_time(points, kept[:, :3], None, np.flatnonzero(keep))
+    return LoadedScan(kept, int(points.size), int((~finite).sum()), int((finite & ~near).sum()), max_coordinate,
+                      timing.time, timing.source, timing.problem)
 
 
 def read_points(path: str | Path) -> np.ndarray:
