@@ -49,8 +49,9 @@ class Pairs(NamedTuple):
 class MovingAgentCaster:
     """Casts a sweep's rays against agents that move while it turns, exactly per ray."""
 
-    def __init__(self, max_range: float) -> None:
+    def __init__(self, max_range: float, mount_radius: float = 0.0) -> None:
         self.max_range = max_range
+        self.mount_radius = mount_radius  # the farthest a rig's sensor sits from the rig's origin (m)
         self.scenes = {kind: raycasting_scene(_unit(template)) for kind, template in
                        ((AgentKind.VEHICLE, BOX), (AgentKind.PEDESTRIAN, CYLINDER))}
 
@@ -60,7 +61,7 @@ class MovingAgentCaster:
         pairs = self.candidates(sweep, rays)
         if not len(pairs.ray):
             return hits
-        distance, normal = self._cast_pairs(sweep, rays, times, pairs)
+        distance, normal, yaw = self._cast_pairs(sweep, rays, times, pairs)
         met = np.flatnonzero(np.isfinite(distance))
         order = met[np.lexsort((distance[met], pairs.ray[met]))]
         ray = pairs.ray[order]
@@ -70,7 +71,7 @@ class MovingAgentCaster:
         hits.owner[ray] = agent
         hits.label[ray] = np.where(sweep.agents.kind[agent] == AgentKind.PEDESTRIAN, PointClass.PEDESTRIAN,
                                    PointClass.VEHICLE)
-        hits.normal[ray] = normal[nearest]
+        hits.normal[ray] = _world_normals(normal[nearest], template_scales(sweep.agents)[agent], yaw[nearest])
         return hits
 
     def candidates(self, sweep: Sweep, rays: np.ndarray) -> Pairs:
@@ -79,7 +80,8 @@ class MovingAgentCaster:
         if not len(end) or not len(rays):
             return Pairs(np.zeros(0, np.int64), np.zeros(0, np.int64))
         sensor = (sweep.pose_start[:2, 3] + sweep.pose[:2, 3]) / 2
-        spread = float(np.sqrt(((rays[:, :2] - sensor.astype(np.float32)) ** 2).sum(1).max())) + MARGIN
+        # every ray starts within this of the sweep's middle: the sensor moves along an arc of less than a turn
+        spread = float(np.linalg.norm(sweep.pose[:2, 3] - sweep.pose_start[:2, 3])) / 2 + self.mount_radius + MARGIN
         centre = (start.position[:, :2] + end.position[:, :2]) / 2
         radius = (_footprint_radius(end) + np.linalg.norm(end.position[:, :2] - start.position[:, :2], axis=1) / 2
                   + MARGIN)  # the agent stays inside this circle during the sweep
@@ -99,20 +101,20 @@ class MovingAgentCaster:
         return Pairs(pairs.ray[keep], pairs.agent[keep])
 
     def _cast_pairs(self, sweep: Sweep, rays: np.ndarray, times: np.ndarray,
-                    pairs: Pairs) -> tuple[np.ndarray, np.ndarray]:
-        """Hit distance (P,) (inf: a miss) and world normal (P, 3) of each pair, the agent where it is at the ray's
-        time."""
+                    pairs: Pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Hit distance (P,) (inf: a miss), the normal of the face hit in the unit template (P, 3) and the agent's
+        heading (P,) of each pair, the agent where it is at the ray's time."""
         o3d = import_open3d()
         position, yaw = sweep.agent_states(pairs.agent, times[pairs.ray].astype(np.float64))
         cos, sin = np.cos(yaw), np.sin(yaw)
-        scale = template_scales(sweep.agents)[pairs.agent]
-        origin = rays[pairs.ray, :3].astype(np.float64) - position
-        direction = rays[pairs.ray, 3:].astype(np.float64)
+        inverse_scale = 1.0 / template_scales(sweep.agents)[pairs.agent]
+        ray = rays[pairs.ray]
+        origin = ray[:, :3] - position  # float64: relative to the agent
         local = np.empty((len(pairs.ray), 6), np.float32)
-        for column, vector in ((0, origin), (3, direction)):  # rotate by -yaw about z, then into the unit template
-            local[:, column] = (cos * vector[:, 0] + sin * vector[:, 1]) / scale[:, 0]
-            local[:, column + 1] = (cos * vector[:, 1] - sin * vector[:, 0]) / scale[:, 1]
-            local[:, column + 2] = vector[:, 2] / scale[:, 2]
+        for column, x, y, z in ((0, origin[:, 0], origin[:, 1], origin[:, 2]), (3, ray[:, 3], ray[:, 4], ray[:, 5])):
+            local[:, column] = (cos * x + sin * y) * inverse_scale[:, 0]  # rotate by -yaw, then into the unit template
+            local[:, column + 1] = (cos * y - sin * x) * inverse_scale[:, 1]
+            local[:, column + 2] = z * inverse_scale[:, 2]
         distance = np.full(len(pairs.ray), np.inf, np.float32)
         normal = np.zeros((len(pairs.ray), 3), np.float32)
         kinds = sweep.agents.kind[pairs.agent]
@@ -122,11 +124,17 @@ class MovingAgentCaster:
                 hit = scene.cast_rays(o3d.core.Tensor(local[mine]))
                 distance[mine] = hit["t_hit"].numpy()
                 normal[mine] = hit["primitive_normals"].numpy()
-        normal /= scale  # a normal scales by the inverse of its surface
-        world = np.stack([cos * normal[:, 0] - sin * normal[:, 1], sin * normal[:, 0] + cos * normal[:, 1],
-                          normal[:, 2]], axis=1)
-        length = np.linalg.norm(world, axis=1, keepdims=True)
-        return distance, (world / np.where(length > 0, length, 1.0)).astype(np.float32)
+        return distance, normal, yaw
+
+
+def _world_normals(normal: np.ndarray, scale: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Unit world normals (K, 3) of faces with normals (K, 3) in unit templates scaled by scale (K, 3), turned by yaw."""
+    normal = normal / scale  # a normal scales by the inverse of its surface
+    cos, sin = np.cos(yaw), np.sin(yaw)
+    world = np.stack([cos * normal[:, 0] - sin * normal[:, 1], sin * normal[:, 0] + cos * normal[:, 1], normal[:, 2]],
+                     axis=1)
+    length = np.linalg.norm(world, axis=1, keepdims=True)
+    return (world / np.where(length > 0, length, 1.0)).astype(np.float32)
 
 
 def _unit(template: Template) -> TriangleSoup:

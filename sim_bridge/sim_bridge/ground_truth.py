@@ -31,8 +31,7 @@ def scene_flow(points: np.ndarray, instance: np.ndarray, time: np.ndarray, sweep
 
     instance holds agent index + 1 (0 = static); time is each point's, s relative to its sweep's stamp."""
     p = points.astype(np.float64)
-    times, slot_of_time = np.unique(np.asarray(time, np.float32), return_inverse=True)  # a column's points share one
-    times = times.astype(np.float64)
+    times, slot_of_time = _firing_times(np.asarray(time, np.float32))
     sensor_t, sensor_next = sweep.sensor_poses(times), following.sensor_poses(times)
     to_next = relative_pose(sensor_t, sensor_next)  # (T, 4, 4) sensor at t -> sensor one period later
     if len(times) == 1:  # einsum, not @: BLAS threads stall after Open3D
@@ -53,6 +52,14 @@ def scene_flow(points: np.ndarray, instance: np.ndarray, time: np.ndarray, sweep
         moved = np.abs(motion - np.eye(4)).max(axis=(1, 2)) > MOVING_THRESHOLD
         dynamic[on_agent] = moved[slot]
     return FlowTruth(flow.astype(np.float32), dynamic)
+
+
+def _firing_times(time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The distinct times (T,) float64 of a sweep's points (a column's share one) and each point's slot among them."""
+    if not len(time) or time.min() == time.max():  # an instant sweep: no sort
+        return time[:1].astype(np.float64) if len(time) else np.zeros(1), np.zeros(len(time), np.int64)
+    times, slot = np.unique(time, return_inverse=True)
+    return times.astype(np.float64), slot
 
 
 def _apply_each(transforms: np.ndarray, slot: np.ndarray, points: np.ndarray) -> np.ndarray:

@@ -108,7 +108,8 @@ class Lidar:
         self.time = self.rays.time
         self.static = static
         self._static_scene = raycasting_scene(static)
-        self._moving_agents = MovingAgentCaster(self.spec.max_range) if self.spec.rolling_shutter else None
+        mount_radius = 0.0 if self.rays.origins is None else float(np.linalg.norm(self.rays.origins, axis=1).max())
+        self._moving_agents = MovingAgentCaster(self.spec.max_range, mount_radius) if self.spec.rolling_shutter else None
 
     def scan(self, sweep: Sweep, rng: np.random.Generator) -> Scan:
         """Cast every beam from where the sensor is when it fires, nearest hit of the static scene and the agents where

@@ -47,11 +47,11 @@ class Sweep:
 
     def agent_states(self, index: np.ndarray, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Positions (K, 3) and headings (K,) of agents index (K,) at times (K,) relative to the stamp."""
-        back = (self.shares(times) - 1.0)[:, None]  # <= 0: measured back from the stamp, so exact there
+        back = self.shares(times) - 1.0  # <= 0: measured back from the stamp, so exact there
         start, end = self.agents_start, self.agents
-        position = end.position[index] + back * (end.position[index] - start.position[index])
-        turn = np.angle(np.exp(1j * (end.yaw[index] - start.yaw[index])))
-        return position, end.yaw[index] + back[:, 0] * turn
+        moved = end.position - start.position
+        turn = np.angle(np.exp(1j * (end.yaw - start.yaw)))  # the shorter way round
+        return end.position[index] + back[:, None] * moved[index], end.yaw[index] + back * turn[index]
 
     def agent_poses(self, index: np.ndarray, times: np.ndarray) -> np.ndarray:
         """World <- agent (K, 4, 4) of agents index (K,) at times (K,) relative to the stamp."""

@@ -60,6 +60,11 @@ def test_screw_interpolation_follows_an_arc_and_ends_exactly_at_the_end():
     b[:3, :3] = a[:3, :3] @ Rotation.from_rotvec([0.3, -0.2, 0.5]).as_matrix()  # less than half a turn apart
     halfway = interpolate_poses(a, b, np.array([0.5]))[0]
     np.testing.assert_allclose(interpolate_poses(a, halfway, np.array([2.0]))[0], b, atol=1e-9)  # a constant twist
+    for angle in (1e-9, np.pi - 1e-5):  # the rotation vector's two delicate ends
+        b[:3, :3] = a[:3, :3] @ Rotation.from_rotvec([0.0, 0.6 * angle, 0.8 * angle]).as_matrix()
+        halfway = interpolate_poses(a, b, np.array([0.5]))[0]
+        assert rotation_angle(invert(a) @ halfway) == pytest.approx(angle / 2, abs=1e-9)
+        np.testing.assert_allclose(interpolate_poses(a, halfway, np.array([2.0]))[0], b, atol=1e-9)
     np.testing.assert_allclose(exp_twists(np.zeros((1, 3)), np.array([[1.0, 2.0, 3.0]]))[0], make_pose(1.0, 2.0, 3.0))
 
 

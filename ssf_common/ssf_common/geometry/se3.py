@@ -56,12 +56,24 @@ def interpolate_poses(start: np.ndarray, end: np.ndarray, shares: np.ndarray) ->
 
     A unicycle's arc at constant speed and yaw rate is such a motion; so is KISS-ICP's constant-velocity deskew."""
     end = np.asarray(end, dtype=np.float64)
+    remaining = 1.0 - np.asarray(shares, dtype=np.float64).reshape(-1, 1)  # of the way back from the end
+    if not remaining.any():
+        return np.repeat(end[None], len(remaining), axis=0)
     back = invert(end) @ np.asarray(start, dtype=np.float64)  # end -> start, in the end's frame
-    rotation_vector = Rotation.from_matrix(back[:3, :3]).as_rotvec()
+    rotation_vector = _rotation_vector(back[:3, :3])
     left_jacobian = _so3_left_jacobian(rotation_vector[None])[0]
     translation_twist = np.linalg.solve(left_jacobian, back[:3, 3])
-    remaining = 1.0 - np.asarray(shares, dtype=np.float64).reshape(-1, 1)  # of the way back from the end
     return end @ exp_twists(remaining * rotation_vector, remaining * translation_twist)
+
+
+def _rotation_vector(rotation: np.ndarray) -> np.ndarray:
+    """The rotation vector (axis times angle) of a 3x3 rotation."""
+    angle = float(np.arccos(np.clip((np.trace(rotation) - 1.0) / 2.0, -1.0, 1.0)))
+    if angle > np.pi - 1e-3:  # near half a turn the antisymmetric part vanishes: scipy's general method
+        return Rotation.from_matrix(rotation).as_rotvec()
+    twice_sine_axis = np.array([rotation[2, 1] - rotation[1, 2], rotation[0, 2] - rotation[2, 0],
+                                rotation[1, 0] - rotation[0, 1]])
+    return twice_sine_axis / 2.0 * (1.0 if angle < 1e-6 else angle / np.sin(angle))
 
 
 def exp_twists(rotation_vectors: np.ndarray, translation_twists: np.ndarray) -> np.ndarray:
