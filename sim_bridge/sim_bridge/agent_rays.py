@@ -4,7 +4,7 @@ Casting in the agent's own frame makes this exact without rebuilding geometry pe
 moved into the frame of agent k at t and scaled into k's template (a unit box or cylinder, one scene each, built
 once), where Open3D's hit parameter is the metric distance along the world ray. Only pairs that can meet are cast:
 rays whose azimuth passes within the agent's circle (grown by how far the agent and the sensor move during the
-sweep), and of those the rays that cross the agent's height band within that circle.
+sweep), and of those the rays that pass through the agent's bounding cylinder where the agent is at their time.
 """
 
 from __future__ import annotations
@@ -49,8 +49,9 @@ class Pairs(NamedTuple):
 class MovingAgentCaster:
     """Casts a sweep's rays against agents that move while it turns, exactly per ray."""
 
-    def __init__(self, max_range: float, mount_radius: float = 0.0) -> None:
+    def __init__(self, max_range: float, columns: int, mount_radius: float = 0.0) -> None:
         self.max_range = max_range
+        self.columns = columns  # rays come row by row (sensor, beam), a row's columns in turn
         self.mount_radius = mount_radius  # the farthest a rig's sensor sits from the rig's origin (m)
         self.scenes = {kind: raycasting_scene(_unit(template)) for kind, template in
                        ((AgentKind.VEHICLE, BOX), (AgentKind.PEDESTRIAN, CYLINDER))}
@@ -58,10 +59,10 @@ class MovingAgentCaster:
     def cast(self, sweep: Sweep, rays: np.ndarray, times: np.ndarray) -> AgentHits:
         """Nearest agent along each world ray (R, 6: origin, unit direction) fired at times (R,) s from the stamp."""
         hits = AgentHits.none(len(rays))
-        pairs = self.candidates(sweep, rays)
+        pairs, origin, yaw = self._meeting(sweep, rays, times, self.candidates(sweep, rays))
         if not len(pairs.ray):
             return hits
-        distance, normal, yaw = self._cast_pairs(sweep, rays, times, pairs)
+        distance, normal = self._cast_pairs(sweep, rays, pairs, origin, yaw)
         met = np.flatnonzero(np.isfinite(distance))
         order = met[np.lexsort((distance[met], pairs.ray[met]))]
         ray = pairs.ray[order]
@@ -75,7 +76,8 @@ class MovingAgentCaster:
         return hits
 
     def candidates(self, sweep: Sweep, rays: np.ndarray) -> Pairs:
-        """Every (ray, agent) that may meet during the sweep: azimuth within the agent's grown circle, then height."""
+        """Every (ray, agent) that may meet during the sweep, seen from any of the rays' origins: the ray's azimuth
+        within the agent's circle, its row's elevations within the agent's height band at that distance."""
         start, end = sweep.agents_start, sweep.agents
         if not len(end) or not len(rays):
             return Pairs(np.zeros(0, np.int64), np.zeros(0, np.int64))
@@ -93,28 +95,39 @@ class MovingAgentCaster:
             return Pairs(np.zeros(0, np.int64), np.zeros(0, np.int64))
         outside = distance[near] > reach[near]  # else the sensor may be inside the circle: every azimuth
         half_width = np.where(outside, np.arcsin(np.minimum(reach[near] / np.maximum(distance[near], 1e-9), 1.0)), np.pi)
-        pairs = _azimuth_pairs(rays[:, 3:], near, np.arctan2(offset[near, 1], offset[near, 0]), half_width)
-        low = np.minimum(start.position[:, 2], end.position[:, 2]) - MARGIN
-        high = np.maximum(start.position[:, 2], end.position[:, 2]) + end.size[:, 2] + MARGIN
-        keep = _crosses_band(rays[pairs.ray], centre[pairs.agent], radius[pairs.agent], low[pairs.agent],
-                             high[pairs.agent])
-        return Pairs(pairs.ray[keep], pairs.agent[keep])
+        low = np.minimum(start.position[near, 2], end.position[near, 2]) - MARGIN
+        high = np.maximum(start.position[near, 2], end.position[near, 2]) + end.size[near, 2] + MARGIN
+        climbs = _climbs(low, high, distance[near] - reach[near], distance[near] + reach[near], rays[:, 2].min(),
+                         rays[:, 2].max())
+        return _pairs_by_row(rays[:, 3:], self.columns, near, np.arctan2(offset[near, 1], offset[near, 0]), half_width,
+                             climbs)
 
-    def _cast_pairs(self, sweep: Sweep, rays: np.ndarray, times: np.ndarray,
-                    pairs: Pairs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Hit distance (P,) (inf: a miss), the normal of the face hit in the unit template (P, 3) and the agent's
-        heading (P,) of each pair, the agent where it is at the ray's time."""
-        o3d = import_open3d()
+    @staticmethod
+    def _meeting(sweep: Sweep, rays: np.ndarray, times: np.ndarray,
+                 pairs: Pairs) -> tuple[Pairs, np.ndarray, np.ndarray]:
+        """The pairs whose ray passes through the agent's bounding cylinder where the agent is when the ray fires,
+        with the ray's origin relative to the agent (P, 3) and the agent's heading (P,) then."""
         position, yaw = sweep.agent_states(pairs.agent, times[pairs.ray].astype(np.float64))
+        ray = rays[pairs.ray]
+        origin = ray[:, :3] - position  # float64: relative to the agent where it is when the ray fires
+        radius = (_footprint_radius(sweep.agents) + MARGIN)[pairs.agent]
+        keep = np.flatnonzero(_meets_cylinder(origin, ray[:, 3:], radius,
+                                              (sweep.agents.size[:, 2] + MARGIN)[pairs.agent]))
+        return Pairs(pairs.ray[keep], pairs.agent[keep]), origin[keep], yaw[keep]
+
+    def _cast_pairs(self, sweep: Sweep, rays: np.ndarray, pairs: Pairs, origin: np.ndarray,
+                    yaw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Hit distance (P,) (inf: a miss) and the normal of the face hit in the unit template (P, 3) of each pair,
+        its ray's origin given relative to the agent (P, 3), the agent turned by yaw (P,)."""
+        o3d = import_open3d()
+        direction = rays[pairs.ray, 3:]
         cos, sin = np.cos(yaw), np.sin(yaw)
         inverse_scale = 1.0 / template_scales(sweep.agents)[pairs.agent]
-        ray = rays[pairs.ray]
-        origin = ray[:, :3] - position  # float64: relative to the agent
         local = np.empty((len(pairs.ray), 6), np.float32)
-        for column, x, y, z in ((0, origin[:, 0], origin[:, 1], origin[:, 2]), (3, ray[:, 3], ray[:, 4], ray[:, 5])):
-            local[:, column] = (cos * x + sin * y) * inverse_scale[:, 0]  # rotate by -yaw, then into the unit template
-            local[:, column + 1] = (cos * y - sin * x) * inverse_scale[:, 1]
-            local[:, column + 2] = z * inverse_scale[:, 2]
+        for column, vector in ((0, origin), (3, direction)):  # rotate by -yaw, then into the unit template
+            local[:, column] = (cos * vector[:, 0] + sin * vector[:, 1]) * inverse_scale[:, 0]
+            local[:, column + 1] = (cos * vector[:, 1] - sin * vector[:, 0]) * inverse_scale[:, 1]
+            local[:, column + 2] = vector[:, 2] * inverse_scale[:, 2]
         distance = np.full(len(pairs.ray), np.inf, np.float32)
         normal = np.zeros((len(pairs.ray), 3), np.float32)
         kinds = sweep.agents.kind[pairs.agent]
@@ -124,7 +137,7 @@ class MovingAgentCaster:
                 hit = scene.cast_rays(o3d.core.Tensor(local[mine]))
                 distance[mine] = hit["t_hit"].numpy()
                 normal[mine] = hit["primitive_normals"].numpy()
-        return distance, normal, yaw
+        return distance, normal
 
 
 def _world_normals(normal: np.ndarray, scale: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -150,37 +163,56 @@ def _footprint_radius(states) -> np.ndarray:
     return np.where(states.kind == AgentKind.PEDESTRIAN, scale[:, 0], np.hypot(scale[:, 0], scale[:, 1]) / 2)
 
 
-def _azimuth_pairs(directions: np.ndarray, agents: np.ndarray, azimuth: np.ndarray, half_width: np.ndarray) -> Pairs:
+def _climbs(low: np.ndarray, high: np.ndarray, nearest: np.ndarray, farthest: np.ndarray, origin_low: float,
+            origin_high: float) -> tuple[np.ndarray, np.ndarray]:
+    """The least and the most height per horizontal metre (K,) of a ray from a height in [origin_low, origin_high]
+    that is within [low, high] somewhere between nearest and farthest horizontally (K,); +-inf when an agent may be
+    right at the origin."""
+    nearest = np.maximum(nearest, 0.0)
+    close = nearest < 0.01
+    down, up = low - origin_high, high - origin_low
+    least = np.where(close, -np.inf, down / np.where(down < 0, np.maximum(nearest, 0.01), farthest))
+    most = np.where(close, np.inf, up / np.where(up > 0, np.maximum(nearest, 0.01), farthest))
+    return least, most
+
+
+def _pairs_by_row(directions: np.ndarray, columns: int, agents: np.ndarray, azimuth: np.ndarray,
+                  half_width: np.ndarray, climbs: tuple[np.ndarray, np.ndarray]) -> Pairs:
     """(ray, agent) for every ray whose world azimuth lies within half_width of each agent's azimuth (one bin wider
-    on each side)."""
+    on each side), in each row whose rays climb within the agent's climbs (least, most)."""
+    rows = len(directions) // columns
     bins = ((np.arctan2(directions[:, 1], directions[:, 0]) + np.pi) * (AZIMUTH_BINS / (2 * np.pi))).astype(np.int64)
-    bins = np.minimum(bins, AZIMUTH_BINS - 1).astype(np.uint16)
-    order = np.argsort(bins, kind="stable")  # a radix sort of 16-bit keys
-    bin_start = np.r_[0, np.cumsum(np.bincount(bins, minlength=AZIMUTH_BINS))]
-    first = np.floor((azimuth - half_width + np.pi) * (AZIMUTH_BINS / (2 * np.pi))).astype(np.int64) - 1
-    last = np.floor((azimuth + half_width + np.pi) * (AZIMUTH_BINS / (2 * np.pi))).astype(np.int64) + 1
+    key = np.repeat(np.arange(rows) * AZIMUTH_BINS, columns) + np.minimum(bins, AZIMUTH_BINS - 1)
+    order = np.argsort(key, kind="stable")  # fast: each row's azimuths already run round in at most two runs
+    sorted_key = key[order]
+    climb = (directions[:, 2] / np.maximum(np.hypot(directions[:, 0], directions[:, 1]), 1e-9)).reshape(rows, columns)
+    meets = (climb.max(axis=1)[None, :] >= climbs[0][:, None]) & (climb.min(axis=1)[None, :] <= climbs[1][:, None])
+    which, row = np.nonzero(meets)  # (agent, row) whose heights can meet
+    first = np.floor((azimuth - half_width + np.pi) * (AZIMUTH_BINS / (2 * np.pi))).astype(np.int64)[which] - 1
+    last = np.floor((azimuth + half_width + np.pi) * (AZIMUTH_BINS / (2 * np.pi))).astype(np.int64)[which] + 1
     whole = last - first + 1 >= AZIMUTH_BINS
     first, last = np.where(whole, 0, first), np.where(whole, AZIMUTH_BINS - 1, last)
     wraps = (first < 0) | (last >= AZIMUTH_BINS)  # split into [first, end of circle] and [0, rest]
     first_bins = np.r_[np.where(wraps, np.mod(first, AZIMUTH_BINS), first), np.zeros(wraps.sum(), np.int64)]
     last_bins = np.r_[np.where(wraps, AZIMUTH_BINS - 1, last), np.mod(last[wraps], AZIMUTH_BINS)]
-    owners = np.r_[agents, agents[wraps]]
-    begin, stop = bin_start[first_bins], bin_start[last_bins + 1]
-    lengths = stop - begin
-    sorted_position = np.repeat(begin, lengths) + ragged_arange(lengths)
-    return Pairs(order[sorted_position], np.repeat(owners, lengths))
+    row_start = np.r_[row, row[wraps]] * AZIMUTH_BINS
+    owners = agents[np.r_[which, which[wraps]]]
+    begin = np.searchsorted(sorted_key, row_start + first_bins, "left")
+    lengths = np.searchsorted(sorted_key, row_start + last_bins, "right") - begin
+    return Pairs(order[np.repeat(begin, lengths) + ragged_arange(lengths)], np.repeat(owners, lengths))
 
 
-def _crosses_band(rays: np.ndarray, centre: np.ndarray, radius: np.ndarray, low: np.ndarray,
-                  high: np.ndarray) -> np.ndarray:
-    """Whether each ray's height lies in [low, high] somewhere over the horizontal distances at which it can be
-    inside the circle (centre, radius)."""
-    origin, direction = rays[:, :3], rays[:, 3:]
-    across = np.hypot(centre[:, 0] - origin[:, 0], centre[:, 1] - origin[:, 1])
-    near, far = np.maximum(across - radius, 0.0), across + radius
-    climb = direction[:, 2] / np.maximum(np.hypot(direction[:, 0], direction[:, 1]), 1e-9)  # height per metre
-    z_near, z_far = origin[:, 2] + near * climb, origin[:, 2] + far * climb
-    return (np.maximum(z_near, z_far) >= low) & (np.minimum(z_near, z_far) <= high)
+def _meets_cylinder(origin: np.ndarray, direction: np.ndarray, radius: np.ndarray, height: np.ndarray) -> np.ndarray:
+    """Whether each ray (origin relative to the bottom centre of an upright cylinder, unit direction) passes through
+    the cylinder of that radius, from MARGIN below its bottom to height."""
+    horizontal = np.maximum(np.hypot(direction[:, 0], direction[:, 1]), 1e-9)
+    across = np.abs(origin[:, 0] * direction[:, 1] - origin[:, 1] * direction[:, 0]) / horizontal
+    closest = -(origin[:, 0] * direction[:, 0] + origin[:, 1] * direction[:, 1]) / horizontal**2  # along the ray
+    half_chord = np.sqrt(np.maximum(radius**2 - across**2, 0.0)) / horizontal
+    enter, leave = np.maximum(closest - half_chord, 0.0), closest + half_chord  # inside the circle between these
+    z_enter, z_leave = origin[:, 2] + enter * direction[:, 2], origin[:, 2] + leave * direction[:, 2]
+    return ((across <= radius) & (leave >= 0.0) & (np.maximum(z_enter, z_leave) >= -MARGIN)
+            & (np.minimum(z_enter, z_leave) <= height))
 
 
 __all__ = ["AgentHits", "MovingAgentCaster", "Pairs"]

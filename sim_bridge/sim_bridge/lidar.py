@@ -109,14 +109,15 @@ class Lidar:
         self.static = static
         self._static_scene = raycasting_scene(static)
         mount_radius = 0.0 if self.rays.origins is None else float(np.linalg.norm(self.rays.origins, axis=1).max())
-        self._moving_agents = MovingAgentCaster(self.spec.max_range, mount_radius) if self.spec.rolling_shutter else None
+        self._moving_agents = (MovingAgentCaster(self.spec.max_range, self.spec.columns, mount_radius)
+                               if self.spec.rolling_shutter else None)
 
     def scan(self, sweep: Sweep, rng: np.random.Generator) -> Scan:
         """Cast every beam from where the sensor is when it fires, nearest hit of the static scene and the agents where
         they are then, sensor effects."""
         o3d = import_open3d()
         spec, fan = self.spec, self.rays
-        rays = self._world_rays(sweep)
+        rays = self.world_rays(sweep)
         rays_tensor = o3d.core.Tensor(rays)
         hit_static = self._static_scene.cast_rays(rays_tensor)
         agents = self._cast_agents(sweep, rays, rays_tensor)
@@ -160,7 +161,7 @@ class Lidar:
             None if mixed is None else mixed[index],
         )
 
-    def _world_rays(self, sweep: Sweep) -> np.ndarray:
+    def world_rays(self, sweep: Sweep) -> np.ndarray:
         """(R, 6) float32 world rays, origin then unit direction, of every beam from where the sensor is when it
         fires."""
         fan = self.rays

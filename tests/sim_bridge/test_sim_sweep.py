@@ -10,6 +10,7 @@ import json
 import numpy as np
 import pytest
 
+from sim_bridge.agent_rays import MovingAgentCaster, Pairs
 from sim_bridge.agents import AgentKind, AgentStates, agent_mesh
 from sim_bridge.ego import EgoVehicle, VelocityCommand
 from sim_bridge.lidar import Lidar, ray_fan, surface_distance
@@ -159,3 +160,28 @@ def test_the_published_cloud_carries_each_points_time_and_reads_back(small_scena
             assert cloud.time.max() == 0.0 and cloud.time.min() < -0.09
         else:  # every point at the stamp: no per-point time to deskew with, and nothing wrong with that
             assert cloud.time is None and not cloud_to_array(msg)["time"].any()
+
+
+class EveryPair(MovingAgentCaster):
+    """Casts every ray against every agent: what the culling must agree with."""
+
+    def candidates(self, sweep, rays):
+        ray, agent = np.meshgrid(np.arange(len(rays)), np.arange(len(sweep.agents)), indexing="ij")
+        return Pairs(ray.reshape(-1), agent.reshape(-1))
+
+
+def test_the_culled_cast_meets_every_agent_that_casting_every_pair_meets(small_scenario):
+    scenario = small_scenario(agents=40, **{"lidar.model": "vlp16", "lidar.columns": 360, "lidar.rolling_shutter": True,
+                                            "agents.keep_clear_of_start": 6.0})
+    sim = Simulator(scenario, seed=5)
+    frame = sim.reset()
+    for _ in range(20):
+        frame = sim.step(VelocityCommand(9.0, 0.3))
+    sweep = frame.sweep
+    rays = sim.lidar.world_rays(sweep)
+    spec = sim.lidar.spec
+    culled = MovingAgentCaster(spec.max_range, spec.columns).cast(sweep, rays, sim.lidar.rays.time)
+    every = EveryPair(spec.max_range, spec.columns).cast(sweep, rays, sim.lidar.rays.time)
+    assert (every.owner >= 0).sum() > 200 and np.linalg.norm(sweep.pose[:3, 3] - sweep.pose_start[:3, 3]) > 0.5
+    np.testing.assert_array_equal(culled.owner, every.owner)
+    np.testing.assert_array_equal(culled.distance, every.distance)
