@@ -63,11 +63,12 @@ def _firing_times(time: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _apply_each(transforms: np.ndarray, slot: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """transforms[slot[n]] applied to points[n] (N, 3), one component at a time (no (N, 3, 3) gather)."""
-    rotation, translation = transforms[:, :3, :3], transforms[:, :3, 3]
+    """transforms[slot[n]] applied to points[n] (N, 3): the 12 entries gathered as contiguous rows (several times faster
+    than an (N, 3, 3) gather and einsum)."""
+    entries = np.take(transforms[:, :3, :].reshape(len(transforms), 12).T, slot, axis=1)  # (12, N)
+    x, y, z = points.T.copy()
     out = np.empty_like(points)
     for axis in range(3):
-        row = rotation[:, axis][slot]
-        out[:, axis] = row[:, 0] * points[:, 0] + row[:, 1] * points[:, 1] + row[:, 2] * points[:, 2]
-        out[:, axis] += translation[slot, axis]
+        row = entries[4 * axis : 4 * axis + 4]
+        out[:, axis] = row[0] * x + row[1] * y + row[2] * z + row[3]
     return out
