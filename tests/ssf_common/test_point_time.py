@@ -64,17 +64,24 @@ def test_absolute_times_are_made_relative_to_the_stamp_or_else_to_the_earliest_p
     points, seconds = sweep(HESAI)
     points["timestamp"] = STAMP_NS * 1e-9 + seconds  # Hesai: float64 s since the epoch, the stamp at the first point
     np.testing.assert_allclose(decoded(points).time, seconds, atol=1e-6)
-    livox = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("timestamp", "<f8")])
+    nanoseconds = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("timestamp", "<u8")])
     for axis in "xyz":
-        livox[axis] = points[axis]
-    livox["timestamp"] = STAMP_NS - 50_000_000 + seconds * 1e9  # livox_ros_driver2: float64 ns since the epoch
-    np.testing.assert_allclose(decoded(livox).time, seconds - 0.05, atol=1e-6)
-    nanoseconds = livox.astype([("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("timestamp", "<u8")])  # as a PCD holds it
-    nanoseconds["timestamp"] = STAMP_NS - 50_000_000 + np.round(seconds * 1e9).astype(np.uint64)
-    exact = point_time(nanoseconds, np.c_[livox["x"], livox["y"], livox["z"]], STAMP_NS).time
+        nanoseconds[axis] = points[axis]
+    nanoseconds["timestamp"] = STAMP_NS - 50_000_000 + np.round(seconds * 1e9).astype(np.uint64)  # u64 epoch ns (PCD)
+    exact = point_time(nanoseconds, np.c_[points["x"], points["y"], points["z"]], STAMP_NS).time
     np.testing.assert_allclose(exact, seconds - 0.05, atol=1e-8)  # integer arithmetic: no float rounding of epochs
     scans.write_pcd(tmp_path / "hesai.pcd", points)  # a file has no stamp: from the earliest point
     np.testing.assert_allclose(scans.read_scan_with_time(tmp_path / "hesai.pcd").time, seconds, atol=1e-6)
+
+
+def test_livox_ros_driver2s_float_timestamp_is_relative_nanoseconds():
+    points, seconds = sweep(LIVOX, fov_deg=70.0)
+    livox = np.zeros(len(points), [("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("reflectivity", "<f4"), ("tag", "u1"),
+                                   ("line", "u1"), ("timestamp", "<f8")])  # its PointCloud2: offset_time as a double
+    for axis in "xyz":
+        livox[axis] = points[axis]
+    livox["timestamp"] = np.round(seconds * 1e9)
+    np.testing.assert_allclose(decoded(livox).time, seconds, atol=1e-9)
 
 
 def test_a_field_in_another_unit_than_its_drivers_is_read_in_the_one_that_makes_a_sweep():

@@ -6,7 +6,7 @@ The drivers' fields, first found first read:
 | --- | --- | --- |
 | `time` | velodyne_pointcloud (ROS 1 and 2), LIO-SAM's layout | float32 s relative to the stamp, which marks the last packet |
 | `t` | ouster-ros | uint32 ns since the header stamp, the scan's first column |
-| `timestamp` | Hesai's ROS drivers, rslidar_sdk | float64 s, absolute |
+| `timestamp` | Hesai's ROS drivers, rslidar_sdk; livox_ros_driver2 | float64 s, absolute; Livox: ns, relative |
 | `time_stamp` | nebula (Autoware, Hesai / Velodyne / Robosense) | uint32 ns relative to the header stamp, the scan's start |
 | `offset_time` | Livox (livox_ros_driver2 frames) | uint32 ns since the frame's first point |
 
