@@ -28,10 +28,10 @@ def ssf_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "ssf_common.cli", *args]
 
 
-def start_recorder(directory: Path, *topics: str) -> subprocess.Popen:
-    """Start `ssf record` and return once its node has joined the graph."""
+def start_recorder(directory: Path, *arguments: str) -> subprocess.Popen:
+    """Start `ssf record` (topics and flags) and return once its node has joined the graph."""
     recorder = subprocess.Popen(
-        ssf_command("record", "-o", str(directory), *topics), stderr=subprocess.PIPE, text=True
+        ssf_command("record", "-o", str(directory), *arguments), stderr=subprocess.PIPE, text=True
     )
     for line in recorder.stderr:
         if "started" in line:
@@ -119,6 +119,38 @@ def test_play_then_record_keeps_bytes_order_qos_and_clock(source_bag, tmp_path):
         assert all((stamp - T0) % 10_000_000 == 0 and 0 <= stamp - T0 <= span_ns for stamp in clock_ns)
         with RosbagsReader(recorded_dir) as reader:
             assert reader.message_count == recorded.info.message_count
+
+
+def test_with_use_sim_time_the_recorder_logs_at_the_clock_and_thins_on_request(source_bag, tmp_path):
+    """As `ros2 bag record --use-sim-time`: each message is logged at the latest /clock, so a recording of a replay four
+    times faster than real time spans the bag's own 2 s; `--every /chatter:2` keeps the first message and every other."""
+    recorded_dir = tmp_path / "recorded"
+    recorder = start_recorder(recorded_dir, "/chatter", "--use-sim-time", "--every", "/chatter:2")
+    player = subprocess.run(
+        ssf_command("bag", "play", str(source_bag), "--rate", "4", "--clock", "--delay", "1.5", "--topics", "/chatter"),
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert player.returncode == 0, player.stderr
+    assert wait_until(lambda: recorded_counts(recorded_dir).get("/chatter", 0) == CHATTER_COUNT // 2)
+    log = stop(recorder, signal.SIGINT)
+    assert recorder.returncode == 0, log
+    with open_bag(recorded_dir) as recorded:
+        got = [(m.timestamp_ns, recorded.decode(m).data) for m in recorded.messages(["/chatter"])]
+        assert ("log_time", "/clock") in recorded.info.custom_data
+    assert [text for _, text in got] == [f"hello {i}" + "!" * (i % 4) for i in range(0, CHATTER_COUNT, 2)]
+    sent = [T0 + i * CHATTER_PERIOD_NS for i in range(0, CHATTER_COUNT, 2)]
+    # the /clock tick at or before a message's time is published before it; a tick that overtakes the message on
+    # its way leaves it at most one chatter period behind, never ahead
+    assert all(0 <= stamp - logged < CHATTER_PERIOD_NS for (logged, _), stamp in zip(got, sent))
+    assert got[-1][0] - got[0][0] > 0.9 * (sent[-1] - sent[0])  # the bag's time, not the replay's half second
+
+
+def test_bad_recorder_flags_are_one_line(capsys, tmp_path):
+    from ssf_common.cli import main
+
+    assert main(["record", "-o", str(tmp_path / "bag"), "--every", "/chatter:0"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("ssf: error: --every '/chatter:0': expected TOPIC:N") and not (tmp_path / "bag").exists()
 
 
 def test_record_closes_a_valid_bag_on_sigterm_while_a_looping_player_runs(source_bag, tmp_path):

@@ -185,7 +185,8 @@ def run_odom(args: argparse.Namespace) -> int:
     from ssf_common.checks import require_finite
     from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_common.paths import check_writable_dir
-    from ssf_eval.odom.run import OdomRunConfig, Perceiver, open_source, progress_bar, run_odometry, write_outputs
+    from ssf_common.progress import progress_bar
+    from ssf_eval.odom.run import OdomRunConfig, Perceiver, open_source, run_odometry, write_outputs
     from ssf_flow_node.core.estimator import WHOLE_SCAN
     from ssf_odom_node.core.odometry import make_odometry
 

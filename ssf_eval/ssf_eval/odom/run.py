@@ -3,7 +3,6 @@ PointCloud2 topic), with the project's own flow and segmentation, written as KIT
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -126,16 +125,6 @@ def run_odometry(source: ScanSource, odometry: Odometry, perceive: Perceiver,
     if previous is not None:
         steps.append(odometry.step(perceive(previous[0], previous[1], None)))
     return steps
-
-
-def progress_bar(total: int) -> Callable[[int, float], None]:
-    """A one-line progress bar on stderr."""
-    def show(done: int, elapsed: float) -> None:
-        filled = int(30 * done / max(total, 1))
-        rate = elapsed / max(done, 1)
-        print(f"\r  [{'#' * filled}{'.' * (30 - filled)}] {done}/{total} scans, {rate:.2f} s/scan, "
-              f"{rate * (total - done):.0f} s left", end="" if done < total else "\n", file=sys.stderr, flush=True)
-    return show
 
 
 def write_outputs(out: Path, steps: list[OdomStep], config: OdomRunConfig, source: ScanSource) -> list[Path]:
