@@ -81,14 +81,14 @@ def draw_frame(ax: Any, frame: ViewFrame, config: RenderConfig, *, legend: bool 
         ax.legend(handles=_legend_handles(frame, config), loc="upper left", fontsize=6.5, framealpha=0.8)
 
 
-def add_scale_bar(ax: Any, width_m: float) -> None:
-    """A white bar of a round length (about a fifth of the width shown) in the lower right corner."""
+def add_scale_bar(ax: Any, width_m: float, colour: str = "white") -> None:
+    """A bar of a round length (about a fifth of the width shown) in the lower right corner."""
     from mpl_toolkits.axes_grid1.anchored_artists import AnchoredSizeBar
 
     target = width_m / 5
     magnitude = 10 ** np.floor(np.log10(target))
     length = max((step * magnitude for step in (1, 2, 5, 10) if step * magnitude <= target), default=magnitude)
-    bar = AnchoredSizeBar(ax.transData, length, f"{length:g} m", "lower right", pad=0.4, color="white", frameon=False,
+    bar = AnchoredSizeBar(ax.transData, length, f"{length:g} m", "lower right", pad=0.4, color=colour, frameon=False,
                           size_vertical=width_m / 250, fontproperties={"size": 7})
     ax.add_artist(bar)
 
