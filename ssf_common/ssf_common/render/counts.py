@@ -18,6 +18,7 @@ from ssf_common.records import Obstacles
 from ssf_common.render.frames import EpisodeTrack, RenderConfig, header_stamp
 
 GROUND_CLEARANCE_M = 0.25  # points lower in an agent's box are the road under it
+POINT_MARGIN_M = 0.3  # scan points this far outside an agent's box still lie on it (noise, the sweep's motion)
 
 
 class FrameCounts(NamedTuple):
@@ -93,7 +94,7 @@ def judge_frame(stamp_ns: int, ego_xy: np.ndarray, agents: Obstacles, perceived:
     movers, reported = agents.take(agents_moving), perceived.take(perceived_moving)
     seen = near(movers, ego_xy, config.count_radius_m)
     if scan is not None:
-        seen &= points_on(movers, scan, config.match_margin_m / 4) >= config.seen_points
+        seen &= points_on(movers, scan, POINT_MARGIN_M) >= config.seen_points
     on = on_boxes(reported.centres, movers, config.match_margin_m)
     found = on.any(axis=0) & seen
     phantom = ~on.any(axis=1)

@@ -47,7 +47,7 @@ class RenderConfig(Section):
                                 "are moving; slower ones stand still")
     count_radius_m: float = Field(40.0, gt=0.0, description="agents and obstacles farther from the ego are not counted")
     seen_points: int = Field(10, ge=1, description="a true moving agent counts as seen with this many scan points on it")
-    match_margin_m: float = Field(1.0, ge=0.0, description="a perceived obstacle whose centre lies this close to a true "
+    match_margin_m: float = Field(2.0, ge=0.0, description="a perceived obstacle whose centre lies this close to a true "
                                   "agent's box is on that agent")
 
 
