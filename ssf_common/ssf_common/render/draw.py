@@ -78,7 +78,9 @@ def draw_frame(ax: Any, frame: ViewFrame, config: RenderConfig, *, legend: bool 
         ax.legend(handles=_legend_handles(frame, config), loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=3,
                   fontsize=7, framealpha=0.9)
     elif legend:
-        ax.legend(handles=_legend_handles(frame, config), loc="upper left", fontsize=6.5, framealpha=0.8)
+        handles = _legend_handles(frame, config)
+        ax.legend(handles=handles, loc="upper left", fontsize=5.5, ncol=2 if len(handles) > 6 else 1, framealpha=0.6,
+                  handlelength=1.5, columnspacing=0.8)
 
 
 def add_scale_bar(ax: Any, width_m: float, colour: str = "white") -> None:
@@ -216,7 +218,7 @@ class FrameDrawer:
         """(H, W, 3) uint8 pixels of one frame."""
         fig = self._fig
         fig.clear()
-        ax = fig.add_axes((0.07, 0.05, 0.9, 0.88))
+        ax = fig.add_axes((0.07, 0.05, 0.9, 0.84))
         draw_frame(ax, frame, self.config)
         ax.set_title(f"{self.title}\n{frame_title(frame, self.start_ns)}".strip(), fontsize=8)
         fig.canvas.draw()
