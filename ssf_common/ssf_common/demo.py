@@ -1,4 +1,4 @@
-"""`ssf demo`: the closed loop in the simulator, every topic recorded, the episode summarised and drawn."""
+"""`ssf demo`: the closed loop in the simulator, recorded in simulated time, the episode summarised and drawn."""
 
 from __future__ import annotations
 
@@ -30,6 +30,7 @@ DEFAULT_TOPICS = ("/lidar/points", "/tf", "/clock", "/ssf/semantic_flow", "/ssf/
                   "/odom", "/ssf/path", "/ssf/map", "/ssf/plan", "/ssf/planner_state", "/cmd_vel", "/ssf/markers",
                   "/sim/ground_truth/obstacles", "/sim/ground_truth/odom", "/sim/route", "/sim/episode",
                   "/sim/markers", "/vehicle/twist", "/diagnostics")
+ON_REQUEST = ("/ssf/flow", "/ssf/mask", "/ssf/mask_hint", "/sim/ground_truth/flow")  # the big clouds left out
 # The segmentation of every other scan: 10 Hz of both clouds would not fit the demo's 400 MB (a float cloud's
 # coordinates and flow do not compress); `--record-all` or `--record /ssf/semantic_flow` keep every one.
 THINNED = {"/ssf/semantic_flow": 2}
@@ -128,11 +129,12 @@ def check_scenario(scenario: str) -> Any:
 
 
 def recording_estimate(scenario: Any, duration_s: float, recording: Recording) -> int:
-    """Bytes the run will record: rays per sweep times sweeps times the measured bytes per ray (urban_100's LiDAR, 10
-    Hz, when the scenario does not say)."""
+    """Bytes the run will record: rays per sweep times sweeps times the measured bytes per ray, of every topic when
+    one of the big clouds is asked for (urban_100's LiDAR, 10 Hz, when the scenario does not say)."""
     spec = scenario.lidar.spec() if scenario is not None and hasattr(scenario, "lidar") else None
     rays, period = (spec.rays, spec.period) if spec is not None else (64 * 1024, 0.1)
-    per_ray = BYTES_PER_RAY["all" if recording.topics is None else "default"]
+    big = recording.topics is None or bool(set(recording.topics) & set(ON_REQUEST))
+    per_ray = BYTES_PER_RAY["all" if big else "default"]
     return int(rays * per_ray * (duration_s / period + 1))
 
 
@@ -177,17 +179,22 @@ def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1, *, vie
     check_inputs(scenario, duration_s, out, seed, video, recording)
     paths = DemoPaths(out)
     graph = with_viewer(demo_graph(paths, scenario, duration_s, seed, driver, recording), viewer)
+    clock = SimClock()  # a middleware that cannot start here (ROS_DOMAIN_ID, rclpy) fails in one line, before any node
     try:
         paths.graph.write_text(config_lib.dump(graph))
     except OSError as err:
+        clock.close()
         raise DataError(f"{paths.graph}: cannot write ({err.strerror})") from None
     who = "the MPC planner on SSF perception" if driver == "planner" else "the built-in route follower"
     print(f"demo: scenario {scenario}, {duration_s:g} s of simulated driving by {who}, results in {paths.out}",
           file=sys.stderr)
     start = time.monotonic()
     launcher = Launcher(graph, output=sys.stderr)
-    with Progress(duration_s, lambda line: launcher.say("demo", line), paths.recording):
-        launcher.run()
+    try:
+        with Progress(duration_s, lambda line: launcher.say("demo", line), paths.recording, clock):
+            launcher.run()
+    finally:
+        clock.close()
     print(f"demo: graph stopped after {time.monotonic() - start:.0f} s", file=sys.stderr)
     summary, problems = check_results(paths, launcher)
     if not problems:
@@ -264,14 +271,14 @@ class Progress:
     """Says every half minute how far the run is in simulated time, how fast against the wall clock, and how big the
     recording has grown (a context manager around the run)."""
 
-    def __init__(self, total_s: float, say: Callable[[str], None], recording: Path,
+    def __init__(self, total_s: float, say: Callable[[str], None], recording: Path, clock: SimClock | None = None,
                  period_s: float = PROGRESS_PERIOD_S) -> None:
         self.total_s = total_s
         self.say = say
         self.recording = recording
+        self.clock = clock
         self.period_s = period_s
         self._stop = threading.Event()
-        self._clock: SimClock | None = None
         self._thread: threading.Thread | None = None
 
     def line(self, sim_s: float, wall_s: float, recorded: int) -> str:
@@ -282,15 +289,11 @@ class Progress:
 
     def _report(self) -> None:
         while not self._stop.wait(self.period_s):
-            sim_s, wall_s = self._clock.elapsed() if self._clock is not None else (0.0, 0.0)
+            sim_s, wall_s = self.clock.elapsed() if self.clock is not None else (0.0, 0.0)
             recorded = folder_bytes(self.recording) if self.recording.is_dir() else 0
             self.say(self.line(sim_s, wall_s, recorded))
 
     def __enter__(self) -> Progress:
-        try:
-            self._clock = SimClock()
-        except SsfError as err:  # the nodes will say the same in their own words; the run goes on without progress
-            print(f"demo: no progress reports ({err})", file=sys.stderr)
         self._thread = threading.Thread(target=self._report, daemon=True, name="demo-progress")
         self._thread.start()
         return self
@@ -299,8 +302,6 @@ class Progress:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5.0)
-        if self._clock is not None:
-            self._clock.close()
 
 
 def draw_episode(paths: DemoPaths, video: Path | None) -> list[str]:

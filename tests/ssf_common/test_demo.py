@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -141,6 +142,8 @@ def test_the_recording_estimate_follows_the_sensor_the_duration_and_the_topics()
     assert 300e6 < twenty < 500e6  # measured: 348 MB for 20 s (docs/recordings.md), with room to spare
     assert demo.recording_estimate(urban, 40.0, default) == pytest.approx(2 * twenty, rel=0.01)
     assert demo.recording_estimate(urban, 20.0, everything) > 4 * twenty
+    flows = demo.Recording.chosen(extra=["/ssf/flow"])  # a big cloud asked for: counted as everything
+    assert demo.recording_estimate(urban, 20.0, flows) == demo.recording_estimate(urban, 20.0, everything)
     sparse = load_scenario("urban_100", {"lidar.model": "vlp16"})
     assert demo.recording_estimate(sparse, 20.0, default) < twenty / 2
 
@@ -150,7 +153,7 @@ def test_demo_topic_choices_become_the_recorders_arguments(tmp_path):
     arguments = default.recorder_arguments(tmp_path / "rec")
     assert arguments[:4] == ["record", "-o", str(tmp_path / "rec"), "--use-sim-time"]
     assert arguments[4:6] == ["--every", "/ssf/semantic_flow:2"] and arguments[6:] == list(demo.DEFAULT_TOPICS)
-    assert not {"/ssf/flow", "/ssf/mask", "/ssf/mask_hint", "/sim/ground_truth/flow"} & set(arguments)
+    assert not set(demo.ON_REQUEST) & set(arguments)
     extra = demo.Recording.chosen(extra=["/ssf/mask", "/ssf/semantic_flow"]).recorder_arguments(tmp_path)
     assert "--every" not in extra and extra[-1] == "/ssf/mask"  # named: recorded whole
     assert demo.Recording.chosen(record_all=True).recorder_arguments(tmp_path) == [
@@ -174,6 +177,14 @@ def test_progress_says_simulated_time_against_the_wall_clock(tmp_path):
                    "left; recording 70.0 MiB"
     assert "waiting for the first simulated step" in progress.line(0.0, 0.0, 0)
     assert "2.0× faster than real time" in progress.line(10.0, 5.0, 0)
+
+
+def test_a_middleware_that_cannot_start_is_one_line_before_any_node_starts(tmp_path):
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--out", str(tmp_path / "out")],
+                            capture_output=True, text=True, timeout=120, env={**os.environ, "ROS_DOMAIN_ID": "241"})
+    assert result.returncode == 2 and result.stdout == ""
+    (line,) = result.stderr.strip().splitlines()
+    assert line == "ssf: error: ROS_DOMAIN_ID must be an integer 0..232, got '241'"
 
 
 class DiedLauncher:
