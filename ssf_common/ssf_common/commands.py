@@ -44,8 +44,8 @@ def _register_graph_commands(groups: CommandGroups) -> None:
         "simulated time, and write the episode summary and a picture drawn from the recording to --out. The MPC "
         "planner drives on SSF perception; --driver follow lets the simulator's built-in route follower drive instead. "
         "The recording holds what a replay needs to run perception again and what a person looks at (about 17 MB per "
-        "simulated second on urban_100); --record-all adds the fusion loop's intermediate clouds and the per-point "
-        "truth (about 90 MB per second).",
+        "simulated second on urban_100: 354 MB for the default 20 s); --record-all adds the fusion loop's "
+        "intermediate clouds and the per-point truth (about 95 MB per second).",
     )
     demo.add_argument("--scenario", default="urban_100", help="scenario name or YAML file (default urban_100)")
     demo.add_argument("--duration", type=float, default=20.0, help="seconds of simulated driving (default 20)")

@@ -216,18 +216,21 @@ class Launcher:
             preexec_fn=_start_child,
             process_group=0,  # a Ctrl-C in the terminal reaches the launcher only; it stops the nodes in order
         )
-        self.say(managed.label, f"started (pid {managed.process.pid})")
+        self._say(managed.label, f"started (pid {managed.process.pid})")
         threading.Thread(target=self._pump, args=(managed, managed.process), daemon=True).start()
 
     def _pump(self, managed: ManagedProcess, process: subprocess.Popen) -> None:
         assert process.stdout is not None
         for raw in process.stdout:
-            self.say(managed.label, raw.decode(errors="replace").rstrip("\n"))
+            self._say(managed.label, raw.decode(errors="replace").rstrip("\n"))
+
+    def _say(self, label: str, text: str) -> None:
+        with self._print_lock:
+            print(f"[{label}] {text}", file=self.output, flush=True)
 
     def say(self, label: str, text: str) -> None:
         """Print one line under a label, whole among the nodes' lines."""
-        with self._print_lock:
-            print(f"[{label}] {text}", file=self.output, flush=True)
+        self._say(label, text)
 
     def poll(self) -> bool:
         """Restart crashed nodes; return False when the graph should stop."""
@@ -245,10 +248,10 @@ class Launcher:
             if code == CONFIG_ERROR_EXIT:
                 managed.finished = True
                 managed.failure = f"exited with code {code} (a configuration error)"
-                self.say(managed.label, f"{managed.failure}; not restarted")
+                self._say(managed.label, f"{managed.failure}; not restarted")
             elif code != 0 and managed.spec.respawn and managed.restarts < managed.spec.max_restarts:
                 managed.restarts += 1
-                self.say(managed.label, f"exited with code {code}; restart {managed.restarts}/{managed.spec.max_restarts}")
+                self._say(managed.label, f"exited with code {code}; restart {managed.restarts}/{managed.spec.max_restarts}")
                 if self._stopping.wait(min(0.5 * managed.restarts, 2.0)):
                     managed.finished = True
                     continue
@@ -257,7 +260,7 @@ class Launcher:
             else:
                 managed.finished = True
                 managed.failure = None if code == 0 else f"exited with code {code}"
-                self.say(managed.label, "finished" if code == 0 else f"{managed.failure}; not restarted")
+                self._say(managed.label, "finished" if code == 0 else f"{managed.failure}; not restarted")
             if managed.spec.required:
                 return False
         return not all(managed.finished for managed in self.managed)
@@ -322,5 +325,5 @@ class Launcher:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
         for label, failure in self.failures:
-            self.say("launch", f"{label} {failure}")
+            self._say("launch", f"{label} {failure}")
         return 1 if self.failures else 0
