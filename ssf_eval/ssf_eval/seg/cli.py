@@ -21,8 +21,10 @@ def register(groups: CommandGroups) -> None:
         "estimate", help="the flow ⇄ segmentation loop on two scan files (.npy, KITTI .bin, .pcd, .ply)",
         description="Runs the whole loop (scene flow conditioned on the mask, segmentation of points and flow, until "
         "they agree) on two whole scans and writes, for every finite point of PC1, float32 columns: dynamic "
-        "probability, label (0 static, 1 dynamic), instance id, flow x y z. --obstacles writes each moving object as "
-        "JSON (centre, size, yaw, velocity in m/s, points) in PC1's sensor frame.")
+        "probability, label (0 static, 1 dynamic), instance id, flow x y z. --obstacles writes every obstacle as JSON "
+        "in PC1's sensor frame, as the fusion node publishes them: each moving object (moving: true, its velocity in "
+        "m/s from the flow) and the still part of the scan as boxes (moving: false: parked cars, poles, walls), each "
+        "with id, kind (vehicle, pedestrian or unknown), centre, size, yaw and points.")
     estimate.add_argument("pc1", type=Path, help="scan t")
     estimate.add_argument("pc2", type=Path, help="scan t+1")
     estimate.add_argument("--method", default=None, help="segmenter (default geometric; see `ssf eval seg --help`)")
@@ -30,7 +32,7 @@ def register(groups: CommandGroups) -> None:
     estimate.add_argument("--iterations", type=int, default=None, help="N_iter of the loop (default 5)")
     estimate.add_argument("--dt", type=float, default=None, help="seconds between the scans (default 0.1)")
     estimate.add_argument("--out", type=Path, required=True, help="output SEG.npy (N, 6) float32")
-    estimate.add_argument("--obstacles", type=Path, help="also write the obstacles as JSON")
+    estimate.add_argument("--obstacles", type=Path, help="also write every obstacle, moving and still, as JSON")
     add_perception_options(estimate)
     estimate.set_defaults(func=run_estimate)
 
@@ -156,17 +158,25 @@ def run_estimate(args: argparse.Namespace) -> int:
     seg = result.fusion.segmentation
     columns = np.column_stack([seg.dynamic_prob, seg.label, seg.instance, result.fusion.flow]).astype(np.float32)
     save_npy(args.out, columns)
-    obstacles = result.found.moving
-    if args.obstacles:
-        items = [{"id": int(obstacles.ids[i]), "kind": int(obstacles.kinds[i]), "centre": obstacles.centres[i],
-                  "size": obstacles.sizes[i], "yaw": float(obstacles.yaws[i]), "velocity": obstacles.velocities[i],
-                  "points": int(obstacles.point_counts[i])} for i in range(len(obstacles))]
+    if args.obstacles:  # every obstacle the fusion node publishes: the moving objects, and the still part as boxes
+        items = obstacle_items(result.found.moving, moving=True) + obstacle_items(result.found.still, moving=False)
         write_result(args.obstacles, {"frame": "scan 1 sensor frame", "obstacles": items})
     fusion = result.fusion
     print(f"{len(columns)} points, {int(seg.dynamic.sum())} dynamic in {seg.num_instances} objects, "
-          f"{fusion.iterations} iterations ({'converged' if fusion.converged else 'stopped at N_iter'}) -> {args.out}",
-          file=sys.stderr)
+          f"{fusion.iterations} iterations ({'converged' if fusion.converged else 'stopped at N_iter'}) -> {args.out}"
+          + (f"; {len(result.found.moving)} moving and {len(result.found.still)} still obstacles -> {args.obstacles}"
+             if args.obstacles else ""), file=sys.stderr)
     return 0
+
+
+def obstacle_items(obstacles, *, moving: bool) -> list[dict[str, Any]]:
+    """Obstacles as JSON objects: id, moving, kind by name, centre, size, yaw, velocity (m/s), points."""
+    from ssf_common.records import ObstacleKind
+
+    return [{"id": int(obstacles.ids[i]), "moving": moving, "kind": ObstacleKind(int(obstacles.kinds[i])).name.lower(),
+             "centre": obstacles.centres[i], "size": obstacles.sizes[i], "yaw": float(obstacles.yaws[i]),
+             "velocity": obstacles.velocities[i], "points": int(obstacles.point_counts[i])}
+            for i in range(len(obstacles))]
 
 
 def build_methods(args: argparse.Namespace, config) -> list:
