@@ -306,6 +306,9 @@ def _draw_fusion(ax: Any, fusion: FusionLog) -> None:
         ax.text(0.5, 0.5, "no /ssf/fusion_state recorded", ha="center", va="center", transform=ax.transAxes)
         ax.axis("off")
         return
+    if not fusion.iterations.any() and fusion.delta_mask is not None:  # one iteration per scan: no Δ between two
+        _draw_prior_change(ax, fusion)
+        return
     converged = len(np.unique(fusion.stamps[fusion.converged]))
     ax.set_title(f"fusion loop: Δ per iteration, {converged} of {len(scans)} scans converged (green)", fontsize=9)
     finite = np.isfinite(fusion.delta_total)
@@ -331,6 +334,20 @@ def _draw_fusion(ax: Any, fusion: FusionLog) -> None:
     if notes:
         ax.text(0.02, 0.02, "\n".join(notes), ha="left", va="bottom", transform=ax.transAxes, fontsize=7,
                 bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "none"})
+
+
+def _draw_prior_change(ax: Any, fusion: FusionLog) -> None:
+    """One iteration per scan: how far each scan's segmentation moved from the mask it started from (the previous scan's,
+    carried by its flow), over time."""
+    seconds = (fusion.stamps - fusion.stamps.min()) / NS
+    change = np.nan_to_num(fusion.delta_mask, nan=0.0)
+    ax.plot(seconds, change, ".", ms=3, color=PERCEIVED_COLOUR)
+    ax.set_xlabel("simulated time (s)")
+    ax.set_ylabel("mean |M(1) − M(0)| per point")
+    ax.set_title(f"fusion: one iteration per scan ({len(np.unique(fusion.stamps))} scans)\nthe segmentation against "
+                 "the prior it started from", fontsize=9)
+    ax.text(0.02, 0.98, f"median {np.median(change):.2e}", ha="left", va="top", transform=ax.transAxes, fontsize=7,
+            bbox={"facecolor": "white", "alpha": 0.85, "edgecolor": "none"})
 
 
 def _draw_counts(ax: Any, counts: list[FrameCounts], start_ns: int, config: RenderConfig) -> None:

@@ -107,6 +107,7 @@ class FusionLog:
     iterations: np.ndarray  # (M,) int
     delta_total: np.ndarray  # (M,)
     converged: np.ndarray  # (M,) bool
+    delta_mask: np.ndarray | None = None  # (M,) mean change of the mask: the segmentation against the mask it started from
 
 
 @dataclass
@@ -212,15 +213,17 @@ def read_track(bag: Any) -> EpisodeTrack:
             odometry.append((estimate.stamp_ns, estimate.pose))
             odometry_frame = estimate.frame_id
         elif message.topic == topics.FUSION_STATE:
-            fusion.append((messages.stamp_ns(msg.header.stamp), msg.iteration, msg.delta_total, msg.converged))
+            fusion.append((messages.stamp_ns(msg.header.stamp), msg.iteration, msg.delta_total, msg.converged,
+                           msg.delta_mask))
         elif message.topic == topics.EPISODE:
             episode = msg
-    rows = np.array(fusion, dtype=np.float64).reshape(-1, 4)
+    rows = np.array(fusion, dtype=np.float64).reshape(-1, 5)
     return EpisodeTrack(
         truth=StampedPoses.of(truth), mounts=mounts, agents=agents, perceived=perceived,
         plans=sorted(plans, key=lambda plan: plan.stamp_ns), odometry=StampedPoses.of(odometry),
         odometry_frame=odometry_frame,
-        fusion=FusionLog(rows[:, 0].astype(np.int64), rows[:, 1].astype(int), rows[:, 2], rows[:, 3].astype(bool)),
+        fusion=FusionLog(rows[:, 0].astype(np.int64), rows[:, 1].astype(int), rows[:, 2], rows[:, 3].astype(bool),
+                         rows[:, 4]),
         scan_stamps=np.unique(clouds[topics.LIDAR_POINTS]).astype(np.int64),
         segmented_stamps=np.unique(clouds[topics.SEMANTIC_FLOW]).astype(np.int64),
         **({} if episode is None else {"outcome": _outcome_name(episode.outcome), "outcome_time_s": float(episode.time),
