@@ -228,6 +228,10 @@ class Launcher:
         with self._print_lock:
             print(f"[{label}] {text}", file=self.output, flush=True)
 
+    def say(self, label: str, text: str) -> None:
+        """Print one line under a label, whole among the nodes' lines."""
+        self._say(label, text)
+
     def poll(self) -> bool:
         """Restart crashed nodes; return False when the graph should stop."""
         for managed in self.managed:

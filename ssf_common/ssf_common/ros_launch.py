@@ -15,7 +15,8 @@ def package_of(executable: str) -> str:
 
 
 def launch_actions(graph: GraphSpec, record_dir: str | None = None) -> list[Any]:
-    """launch_ros Node actions for the graph's nodes; `ssf record` becomes `ros2 bag record` (MCAP)."""
+    """launch_ros Node actions for the graph's nodes; `ssf record` becomes `ros2 bag record` (MCAP, every topic, in
+    simulated time when the graph's recorder is)."""
     from launch.actions import ExecuteProcess
     from launch_ros.actions import Node
 
@@ -24,6 +25,7 @@ def launch_actions(graph: GraphSpec, record_dir: str | None = None) -> list[Any]
         if spec.executable == "ssf":
             if spec.arguments[:1] == ["record"]:
                 command = ["ros2", "bag", "record", "--all", "--storage", "mcap"]
+                command += ["--use-sim-time"] if "--use-sim-time" in spec.arguments else []  # log times on /clock
                 actions.append(ExecuteProcess(cmd=command + (["-o", record_dir] if record_dir else []), output="screen"))
             continue
         actions.append(_node_action(Node, spec, graph.global_parameters))

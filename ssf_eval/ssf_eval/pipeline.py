@@ -8,7 +8,9 @@ evaluations and the navigation benchmark run this; the nodes run the same core f
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -32,6 +34,15 @@ class PerceptionConfig(Section):
     dt: float = Field(0.1, gt=0.0, description="time between consecutive scans (s) where the scans carry no stamps")
 
 
+class ChainTimes(NamedTuple):
+    """CPU time (ms) of each step of one scan's pass, by the node that runs it."""
+
+    prior_ms: float  # flow node: carrying the previous scan's segmentation onto this one
+    flow_ms: float  # flow node: the estimates (every iteration)
+    segmentation_ms: float  # segmentation node (every iteration)
+    fusion_ms: float  # fusion node: obstacles, and what the next scan's prior is made of
+
+
 @dataclass(frozen=True)
 class ScanPerception:
     """What perception made of one scan pair: the loop's result, its ego motion and the obstacles (scan t's frame)."""
@@ -40,6 +51,7 @@ class ScanPerception:
     ego: EgoMotion
     found: SceneObstacles
     prior: np.ndarray | None  # M^(0): the mask the loop started from
+    cpu: ChainTimes = ChainTimes(0.0, 0.0, 0.0, 0.0)
 
     @property
     def obstacles(self) -> Obstacles:
@@ -66,11 +78,14 @@ class PerceptionChain:
         previous call's pc2 was, so that call's segmentation, carried by its flow, is the preliminary mask M^(0)
         (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.dt."""
         radius = self.config.fusion.prior_radius
+        started = time.process_time()
         # 1. the temporal prior: the previous scan's segmentation carried onto this one
         if mask is None and follows and self.source is not None:
             mask = carry_prior(self.source, pc1)
+        carried = time.process_time()
         # 2. flow with its ego motion ⇄ segmentation, until they agree
         fusion = self.loop.run(pc1, pc2, mask)
+        looped = time.process_time()
         dt = self.config.dt if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
         ego = EgoMotion(stamp_ns, stamp_ns + int(round(dt * 1e9)), frame_id, fusion.ego, fusion.iterations - 1)
         # 3. the obstacles: moving instances with their velocities, the still part as boxes
@@ -78,4 +93,7 @@ class PerceptionChain:
                                self.config.obstacles)
         # 4. what this scan leaves for the next one's prior
         self.source = prior_source(stamp_ns, frame_id, pc1, fusion.flow, fusion.segmentation.dynamic_prob, radius)
-        return ScanPerception(fusion, ego, found, mask)
+        flow_ms = sum(step.flow_cpu_ms for step in fusion.steps)
+        cpu = ChainTimes((carried - started) * 1e3, flow_ms, (looped - carried) * 1e3 - flow_ms,
+                         (time.process_time() - looped) * 1e3)
+        return ScanPerception(fusion, ego, found, mask, cpu)

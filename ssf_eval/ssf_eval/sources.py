@@ -122,7 +122,8 @@ def bag_pairs(path: Path, protocol: PairProtocol, limit: int, seed: int = 0) -> 
     mounts: dict[str, np.ndarray] = {}
     with open_bag(path) as bag:
         if GT_FLOW_TOPIC not in bag.topics:
-            raise DataError(f"{path}: no {GT_FLOW_TOPIC} topic (record a simulator run with `ssf demo` or `ssf record`)")
+            raise DataError(f"{path}: no {GT_FLOW_TOPIC} topic (record a simulator run with `ssf demo --record-all`, "
+                            f"`ssf demo --record {GT_FLOW_TOPIC}` or `ssf record`)")
         wanted = [topic for topic in (GT_FLOW_TOPIC, GT_ODOM_TOPIC, TF_TOPIC) if topic in bag.topics]
         for message in bag.messages(wanted):
             msg = bag.decode(message)

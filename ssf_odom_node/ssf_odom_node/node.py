@@ -279,8 +279,9 @@ class OdomNode(Node):
             self.tf_pub.publish(odometry_transform_msg(newest))
         self.path.append(messages.msg_type("geometry_msgs/msg/PoseStamped")(
             header=messages.header(step.stamp_ns, self.wiring.odom_frame), pose=pose_msgs.pose_msg(estimate.pose)))
-        self.path_pub.publish(messages.msg_type("nav_msgs/msg/Path")(
-            header=messages.header(step.stamp_ns, self.wiring.odom_frame), poses=list(self.path)))
+        if self.path_pub.get_subscription_count():  # the whole path, for someone watching (thousands of poses late in
+            self.path_pub.publish(messages.msg_type("nav_msgs/msg/Path")(  # a drive: milliseconds a scan for nobody)
+                header=messages.header(step.stamp_ns, self.wiring.odom_frame), poses=list(self.path)))
 
     def learn_period(self, gap_ns: int) -> None:
         """The sensor's period: the shortest time between two answered scans, once it came PERIOD_CONFIRMATIONS times
@@ -305,8 +306,10 @@ class OdomNode(Node):
 
     def _publish_map(self) -> None:
         """The static map (odom frame) at a low rate."""
+        if self._last_stamp is None or not self.map_pub.get_subscription_count():  # built only for someone who listens
+            return
         points = np.asarray(self.odometry.map.points, dtype=np.float64)
-        if self._last_stamp is None or len(points) == 0:
+        if len(points) == 0:
             return
         base = points @ self.mount[:3, :3].T + self.mount[:3, 3]
         self.map_pub.publish(xyz_to_cloud(base.astype(np.float32), messages.header(self._last_stamp, self.wiring.odom_frame)))

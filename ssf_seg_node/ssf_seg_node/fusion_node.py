@@ -125,10 +125,10 @@ class FusionNode(Node):
             dt = self.config.dt
         else:
             ego, dt = result.ego.transform, result.ego.dt
+        self.result_pub.publish(semantic_flow_to_cloud(result))  # first: the odometry works while the obstacles are made
         obstacles = scan_obstacles(result.points, result.flow, result.segmentation, ego, dt, result.stamp_ns,
                                    result.frame_id, self.config.obstacles).all()
-        self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # before the odometry's input: the planner ticks on /odom
-        self.result_pub.publish(semantic_flow_to_cloud(result))
+        self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # (they take less time than the odometry's step)
         radius = self.config.fusion.prior_radius  # last: the flow node needs it only when the next scan comes
         self.prior_pub.publish(prior_to_cloud(prior_source(result.stamp_ns, result.frame_id, result.points,
                                                            result.flow, result.segmentation.dynamic_prob, radius)))

@@ -21,6 +21,7 @@ T0 = 1_650_000_000_000_000_000
 CHATTER_PERIOD_NS = 50_000_000
 CHATTER_COUNT = 40
 CLOUD_COUNT = 6
+CLOCK_PERIOD_NS = 10_000_000  # `ssf bag play --clock` ticks at 100 Hz of bag time
 
 
 def ssf_command(*args: str) -> list[str]:
@@ -28,10 +29,10 @@ def ssf_command(*args: str) -> list[str]:
     return [sys.executable, "-m", "ssf_common.cli", *args]
 
 
-def start_recorder(directory: Path, *topics: str) -> subprocess.Popen:
-    """Start `ssf record` and return once its node has joined the graph."""
+def start_recorder(directory: Path, *arguments: str) -> subprocess.Popen:
+    """Start `ssf record` (topics and flags) and return once its node has joined the graph."""
     recorder = subprocess.Popen(
-        ssf_command("record", "-o", str(directory), *topics), stderr=subprocess.PIPE, text=True
+        ssf_command("record", "-o", str(directory), *arguments), stderr=subprocess.PIPE, text=True
     )
     for line in recorder.stderr:
         if "started" in line:
@@ -119,6 +120,41 @@ def test_play_then_record_keeps_bytes_order_qos_and_clock(source_bag, tmp_path):
         assert all((stamp - T0) % 10_000_000 == 0 and 0 <= stamp - T0 <= span_ns for stamp in clock_ns)
         with RosbagsReader(recorded_dir) as reader:
             assert reader.message_count == recorded.info.message_count
+
+
+def test_with_use_sim_time_the_recorder_logs_at_the_clock_and_thins_on_request(source_bag, tmp_path):
+    """As `ros2 bag record --use-sim-time`: each message is logged at the latest /clock tick, so the recording of a
+    replay twice as fast as real time holds the bag's own times (2022, 10 ms ticks), not the wall clock's; `--every
+    /chatter:2` keeps the first message and every other."""
+    recorded_dir = tmp_path / "recorded"
+    recorder = start_recorder(recorded_dir, "/chatter", "--use-sim-time", "--every", "/chatter:2")
+    player = subprocess.run(
+        ssf_command("bag", "play", str(source_bag), "--rate", "2", "--clock", "--delay", "1.5", "--topics", "/chatter"),
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert player.returncode == 0, player.stderr
+    assert wait_until(lambda: recorded_counts(recorded_dir).get("/chatter", 0) == CHATTER_COUNT // 2)
+    log = stop(recorder, signal.SIGINT)
+    assert recorder.returncode == 0, log
+    with open_bag(recorded_dir) as recorded:
+        got = [(m.timestamp_ns, recorded.decode(m).data) for m in recorded.messages(["/chatter"])]
+        assert ("log_time", "/clock") in recorded.info.custom_data
+    assert [text for _, text in got] == [f"hello {i}" + "!" * (i % 4) for i in range(0, CHATTER_COUNT, 2)]
+    logged = np.array([stamp for stamp, _ in got])
+    sent = T0 + np.arange(0, CHATTER_COUNT, 2) * CHATTER_PERIOD_NS
+    assert ((logged - T0) % CLOCK_PERIOD_NS == 0).all() and (logged >= T0).all()  # every log time is a tick
+    assert (np.diff(logged) >= 0).all()
+    # a tick published before a message may reach the recorder after it (another reader): the message is logged at
+    # an earlier tick, or at a later one when the recorder fell behind; never far from its own time
+    assert (np.abs(logged - sent) < 10 * CHATTER_PERIOD_NS).all()
+
+
+def test_bad_recorder_flags_are_one_line(capsys, tmp_path):
+    from ssf_common.cli import main
+
+    assert main(["record", "-o", str(tmp_path / "bag"), "--every", "/chatter:0"]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("ssf: error: --every '/chatter:0': expected TOPIC:N") and not (tmp_path / "bag").exists()
 
 
 def test_record_closes_a_valid_bag_on_sigterm_while_a_looping_player_runs(source_bag, tmp_path):

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -59,6 +61,26 @@ def test_demo_serves_the_graph_live_and_animates_the_episode(demo_run):
         assert scans - 3 <= gif.n_frames <= scans  # a frame per recorded scan placed by a true pose
 
 
+def test_demo_records_by_default_what_a_replay_and_a_person_need_in_simulated_time(demo_run):
+    """The scans, the segmentation (every other scan's), obstacles, odometry, plan, commands, tf, clock and the truth
+    boxes and poses; not the fusion loop's intermediate clouds nor the per-point truth. Log times are the simulator's
+    /clock, so the bag lasts as long as the drive; its size keeps a 20 s demo under 400 MB."""
+    result, out = demo_run
+    with open_bag(out / "recording") as bag:
+        counts = {name: topic.message_count for name, topic in bag.topics.items() if topic.message_count}
+        info = bag.info
+    assert set(counts) <= set(demo.DEFAULT_TOPICS), set(counts) - set(demo.DEFAULT_TOPICS)
+    assert {"/lidar/points", "/ssf/semantic_flow", "/ssf/obstacles", "/odom", "/ssf/plan", "/cmd_vel", "/tf", "/clock",
+            "/sim/ground_truth/obstacles", "/sim/ground_truth/odom"} <= set(counts), counts
+    scans = counts["/lidar/points"]
+    assert scans == STEPS + 1 and counts["/ssf/semantic_flow"] <= (scans + 1) // 2  # every other segmentation
+    assert info.start_ns == 0 and info.end_ns == STEPS * 100_000_000  # the simulated drive, not the wall clock
+    printed = strict_loads(result.stdout)
+    assert printed["recording_bytes"] == demo.folder_bytes(out / "recording")
+    assert printed["recording_bytes"] < 400e6 * scans / (20 * 10 + 1)  # at this rate a 20 s demo stays under 400 MB
+    assert "demo: recording " in result.stderr and "duration reached after 3.0 s" in result.stderr
+
+
 def test_demo_recording_holds_the_closed_loop(demo_run):
     _, out = demo_run
     with open_bag(out / "recording") as bag:
@@ -67,7 +89,7 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
         assert all(counts.get(name, 0) > 0 for name in demo.RECORDED_TOPICS), counts
         scans = [messages.stamp_ns(bag.decode(m).header.stamp) for m in bag.messages(["/lidar/points"])]
         episode = [bag.decode(m) for m in bag.messages(["/sim/episode"])]
-        flow = [bag.decode(m) for m in bag.messages(["/ssf/flow"])]
+        flow = [bag.decode(m) for m in bag.messages(["/ssf/semantic_flow"])]
         semantic = [bag.decode(m) for m in bag.messages(["/ssf/semantic_flow"])]
         commands = [bag.decode(m) for m in bag.messages(["/cmd_vel"])]
         truth = [bag.decode(m) for m in bag.messages(["/sim/ground_truth/odom"])]
@@ -83,7 +105,7 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
     assert abs((last.x ** 2 + last.y ** 2) ** 0.5 - driven) < 0.5 * driven
     assert scans[-1] == STEPS * 100_000_000
     assert episode[-1].scenario == "urban_100" and abs(episode[-1].time - DURATION_S) < 1e-9
-    assert {messages.stamp_ns(f.header.stamp) for f in flow} <= set(scans)  # flow answers recorded scans
+    assert {messages.stamp_ns(f.header.stamp) for f in flow} <= set(scans)  # the flow answers recorded scans
     assert all({"flow_x", "flow_y", "flow_z"} <= {field.name for field in f.fields} for f in flow)
 
 
@@ -102,6 +124,67 @@ def test_bad_demo_flags_are_one_line_before_any_process_starts(capsys, tmp_path,
     out, err = capsys.readouterr()
     (line,) = err.strip().splitlines()
     assert line.startswith("ssf: error: ") and fragment in line and out == ""
+
+
+def test_the_demo_refuses_in_one_line_a_disk_its_recording_will_not_fit(capsys, tmp_path, monkeypatch):
+    monkeypatch.setattr(demo.shutil, "disk_usage", lambda path: shutil._ntuple_diskusage(10**12, 10**12 - 10**8, 10**8))
+    assert main(["demo", "--out", str(tmp_path / "out")]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"ssf: error: {tmp_path / 'out'}: 95.4 MiB free, but 20 s of driving record about ")
+
+
+def test_the_recording_estimate_follows_the_sensor_the_duration_and_the_topics():
+    from sim_bridge.scenario import load_scenario
+
+    urban = load_scenario("urban_100")
+    default, everything = demo.Recording.chosen(), demo.Recording.chosen(record_all=True)
+    twenty = demo.recording_estimate(urban, 20.0, default)
+    assert 300e6 < twenty < 500e6  # measured: 348 MB for 20 s (docs/recordings.md), with room to spare
+    assert demo.recording_estimate(urban, 40.0, default) == pytest.approx(2 * twenty, rel=0.01)
+    assert demo.recording_estimate(urban, 20.0, everything) > 4 * twenty
+    flows = demo.Recording.chosen(extra=["/ssf/flow"])  # a big cloud asked for: counted as everything
+    assert demo.recording_estimate(urban, 20.0, flows) == demo.recording_estimate(urban, 20.0, everything)
+    sparse = load_scenario("urban_100", {"lidar.model": "vlp16"})
+    assert demo.recording_estimate(sparse, 20.0, default) < twenty / 2
+
+
+def test_demo_topic_choices_become_the_recorders_arguments(tmp_path):
+    default = demo.Recording.chosen()
+    arguments = default.recorder_arguments(tmp_path / "rec")
+    assert arguments[:4] == ["record", "-o", str(tmp_path / "rec"), "--use-sim-time"]
+    assert arguments[4:6] == ["--every", "/ssf/semantic_flow:2"] and arguments[6:] == list(demo.DEFAULT_TOPICS)
+    assert not set(demo.ON_REQUEST) & set(arguments)
+    extra = demo.Recording.chosen(extra=["/ssf/mask", "/ssf/semantic_flow"]).recorder_arguments(tmp_path)
+    assert "--every" not in extra and extra[-1] == "/ssf/mask"  # named: recorded whole
+    assert demo.Recording.chosen(record_all=True).recorder_arguments(tmp_path) == [
+        "record", "-o", str(tmp_path), "--use-sim-time"]  # every topic
+
+
+@pytest.mark.parametrize(("args", "fragment"), [
+    (["--record-all", "--record", "/ssf/mask"], "give it or --record TOPIC ..., not both"),
+    (["--record", "ssf/mask"], "topic 'ssf/mask' must be absolute"),
+])
+def test_bad_record_flags_are_one_line(capsys, tmp_path, args, fragment):
+    assert main(["demo", "--out", str(tmp_path / "out"), *args]) == 2
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith("ssf: error: ") and fragment in line
+
+
+def test_progress_says_simulated_time_against_the_wall_clock(tmp_path):
+    progress = demo.Progress(20.0, print, tmp_path)
+    line = progress.line(5.0, 30.5, 70 * 2**20)
+    assert line == "t 5.0 / 20 s [#######.......................] 6.1× slower than real time, about 1 min 32 s " \
+                   "left; recording 70.0 MiB"
+    assert "waiting for the first simulated step" in progress.line(0.0, 0.0, 0)
+    assert "2.0× faster than real time" in progress.line(10.0, 5.0, 0)
+
+
+def test_a_middleware_that_cannot_start_is_one_line_before_any_node_starts(tmp_path):
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--out", str(tmp_path / "out")],
+                            capture_output=True, text=True, timeout=120, env={**os.environ, "ROS_DOMAIN_ID": "241"})
+    assert result.returncode == 2 and result.stdout == ""
+    (line,) = result.stderr.strip().splitlines()
+    assert line == "ssf: error: ROS_DOMAIN_ID must be an integer 0..232, got '241'"
 
 
 class DiedLauncher:

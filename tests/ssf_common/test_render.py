@@ -102,6 +102,119 @@ def recording(tmp_path_factory) -> Path:
     return path
 
 
+JUDGED_SCANS = 5
+PHANTOM_XY = (14.0, 8.0)  # where the perception reports a moving obstacle and no agent is
+
+
+def known_agents(stamp: int) -> Obstacles:
+    """In the world: 1 a car driving and scanned, 2 a car driving and scanned, 3 a pedestrian walking behind a wall
+    (no point on it), 4 a car parked and scanned, 5 a car driving 60 m away, scanned."""
+    t = stamp * 1e-9
+    vehicle, walker = [4.5, 1.9, 1.6], [0.6, 0.6, 1.8]
+    return Obstacles(stamp, "world", ids=[1, 2, 3, 4, 5], kinds=[1, 1, 2, 1, 1],
+                     centres=[[20.0 + 3.0 * t, 2.0, 0.8], [30.0 - 4.0 * t, -6.0, 0.8], [12.0, -12.0 + 1.2 * t, 0.9],
+                              [16.0, -4.0, 0.8], [70.0 + 5.0 * t, 3.0, 0.8]],
+                     sizes=[vehicle, vehicle, walker, vehicle, vehicle], yaws=[0.0, np.pi, np.pi / 2, 0.0, 0.0],
+                     velocities=[[3.0, 0.0, 0.0], [-4.0, 0.0, 0.0], [0.0, 1.2, 0.0], [0.0, 0.0, 0.0], [5.0, 0.0, 0.0]])
+
+
+def perceived_obstacles(stamp: int) -> Obstacles:
+    """What the perception reports, in the world: car 1 moving, the parked car still, the hidden walker (its motion
+    carried along), and a phantom; car 2 is missed."""
+    truth = known_agents(stamp)
+    found = truth.take(np.array([0, 3, 2]))
+    phantom = Obstacles(stamp, "world", ids=[77], kinds=[1], centres=[[*PHANTOM_XY, 0.8]], sizes=[[4.0, 1.8, 1.5]],
+                        yaws=[0.3], velocities=[[2.0, 1.0, 0.0]])
+    return replace(found.joined(phantom), ids=np.array([11, 0, 13, 77]))
+
+
+@pytest.fixture(scope="module")
+def judged_recording(tmp_path_factory) -> Path:
+    """Scans with points on agents 1, 2, 4 and 5 (not on the hidden walker), their truth, perceived obstacles in the
+    sensor frame, and the simulator's last word: still driving when its time was up."""
+    path = tmp_path_factory.mktemp("judged") / "recording"
+    writer = BagWriter(path, BagWriterConfig())
+    for topic, type_name in {topics.LIDAR_POINTS: "sensor_msgs/msg/PointCloud2", topics.GT_ODOM: "nav_msgs/msg/Odometry",
+                             topics.TF: "tf2_msgs/msg/TFMessage", topics.GT_OBSTACLES: "ssf_interfaces/msg/ObstacleArray",
+                             topics.OBSTACLES: "ssf_interfaces/msg/ObstacleArray",
+                             topics.EPISODE: "ssf_interfaces/msg/EpisodeResult"}.items():
+        writer.add_topic(topic, type_name, ())
+    rng = np.random.default_rng(0)
+    result = messages.msg_type("ssf_interfaces/msg/EpisodeResult")
+    for k in range(JUDGED_SCANS):
+        stamp = k * DT_NS
+        write = lambda topic, msg, at=stamp: writer.write(topic, messages.serialize(msg), at)  # noqa: E731
+        truth = known_agents(stamp)
+        grid = np.stack(np.meshgrid(np.linspace(-10, 80, 90), np.linspace(-30, 30, 60)), -1).reshape(-1, 2)
+        world = [np.column_stack([grid, np.zeros(len(grid))])]
+        for row in (0, 1, 3, 4):  # the walker, row 2, is hidden
+            box = rng.uniform(-0.5, 0.5, (60, 3)) * truth.sizes[row]
+            world.append(box @ make_pose(yaw=float(truth.yaws[row]))[:3, :3].T + truth.centres[row])
+        to_lidar = invert(ego_pose(k) @ MOUNT)
+        local = np.concatenate(world) @ to_lidar[:3, :3].T + to_lidar[:3, 3]
+        write(topics.GT_ODOM, odometry_to_msg(OdometryEstimate(stamp, ego_pose(k), np.zeros((6, 6)), frame_id="world")))
+        write(topics.TF, messages.msg_type("tf2_msgs/msg/TFMessage")(transforms=[
+            pose_msgs.transform_stamped_msg(MOUNT, stamp, "base_link", "lidar")]))
+        write(topics.GT_OBSTACLES, obstacles_to_msg(truth))
+        write(topics.LIDAR_POINTS, xyz_to_cloud(local.astype(np.float32), messages.header(stamp, "lidar")))
+        write(topics.OBSTACLES, obstacles_to_msg(perceived_obstacles(stamp).transformed(to_lidar, "lidar")),
+              stamp + LAG_NS)
+        write(topics.EPISODE, result(header=messages.header(stamp, "world"), scenario="urban_100", seed=7, outcome=0,
+                                     time=stamp * 1e-9, distance=2.0 * k, average_speed=5.0, min_clearance=3.0,
+                                     num_agents=5))
+    writer.close()
+    return path
+
+
+def test_every_scan_is_judged_perceived_missed_and_made_up_against_the_truth(judged_recording):
+    """Of the two cars driving where the LiDAR sees them one is perceived and one missed; the hidden walker and the car
+    60 m away do not count, nor does the obstacle on the walker count as a phantom; the one on nothing does; the
+    parked car is a still obstacle."""
+    from ssf_common.render.counts import FrameCounts, judge_recording
+
+    bag, track = open_track(judged_recording)
+    with bag:
+        judged = judge_recording(bag, track, RenderConfig())
+    assert sorted(judged) == [k * DT_NS for k in range(JUDGED_SCANS)]
+    for stamp, judgement in judged.items():
+        assert judgement.counts == FrameCounts(stamp, true=2, perceived=3, matched=1, missed=1, phantoms=1, still=1)
+        assert judgement.missed_ids == {2}
+        np.testing.assert_allclose(judgement.phantom_centres, [PHANTOM_XY], atol=1e-6)
+    # a stricter eye: with more points needed to count as seen, the cars (60 points each, some under the
+    # ground clearance) are no longer seen, and nothing is missed
+    bag, track = open_track(judged_recording)
+    with bag:
+        strict = judge_recording(bag, track, RenderConfig(seen_points=61))
+    assert {j.counts.true for j in strict.values()} == {0} and {j.counts.phantoms for j in strict.values()} == {1}
+
+
+def test_the_episode_picture_shows_the_counts_and_the_outcome_in_words(judged_recording, tmp_path):
+    from ssf_common.render.counts import summary_line
+    from ssf_common.render.draw import frame_title, outcome_words
+
+    bag, track = open_track(judged_recording)
+    with bag:
+        frames = list(recording_frames(bag, track, RenderConfig()))
+    assert outcome_words(track) == "duration reached at 0.4 s, still driving"
+    assert outcome_words(replace(track, outcome_time_s=0.2)) == "stopped from outside at 0.4 s, still driving"
+    assert outcome_words(replace(track, outcome="collision", outcome_time_s=0.3)) == "collision after 0.3 s"
+    assert frames[-1].judged is None  # the recording_frames of `render_recording` get the judgements
+    from ssf_common.render.counts import judge_recording
+
+    bag, track = open_track(judged_recording)
+    with bag:
+        judged = judge_recording(bag, track, RenderConfig())
+        frames = list(recording_frames(bag, track, RenderConfig(), judged=judged))
+    assert "true moving agents seen 2: perceived 1, missed 1; phantoms 1; still obstacles 1" in frame_title(frames[-1], 0)
+    assert summary_line([j.counts for j in judged.values()]) == (
+        "50 % of 10 true moving agents seen by the LiDAR perceived, 5 missed; 1.0 phantoms and 1 still obstacles per "
+        "scan (median) over 5 scans")
+    summary = render_recording(judged_recording, picture=tmp_path / "episode.png")
+    assert summary.picture == tmp_path / "episode.png"
+    with Image.open(tmp_path / "episode.png") as picture:
+        assert picture.width > picture.height  # the overview, the last moment and the fusion panel over the counts
+
+
 def frames_of(recording: Path, **settings) -> list:
     bag, track = open_track(recording)
     with bag:
@@ -113,10 +226,10 @@ def test_every_layer_lands_where_the_world_has_it(recording):
     assert [frame.stamp_ns for frame in frames] == [k * DT_NS for k in range(SCANS)]  # one frame per scan
     for k, frame in enumerate(frames):
         np.testing.assert_allclose(frame.ego_pose, ego_pose(k), atol=1e-9)
-        truth = agents(frame.stamp_ns)
+        segmented = k - k % 2
+        truth = agents(segmented * DT_NS)  # the agents at the time of the points drawn: the newest segmentation's
         np.testing.assert_allclose(frame.agents.centres, truth.centres, atol=1e-9)
         # perceived obstacles: sensor frame -> world by the true pose at their stamp and the mount
-        segmented = k - k % 2
         assert frame.labels is not None and len(frame.perceived) == 1
         np.testing.assert_allclose(frame.perceived.centres[0], agents(segmented * DT_NS).centres[0], atol=1e-6)
         np.testing.assert_allclose(frame.perceived.velocities[0], truth.velocities[0], atol=1e-6)
@@ -152,7 +265,8 @@ def test_perceived_obstacles_are_drawn_only_when_seen(recording):
         plt.close(figure)
         return image
 
-    with_obstacle, without = pixels(frames[2]), pixels(replace(frames[2], perceived=None))
+    plain = replace(frames[2], labels=np.zeros_like(frames[2].labels))  # no dynamic points drawn over the box
+    with_obstacle, without = pixels(plain), pixels(replace(plain, perceived=None))
     changed = (with_obstacle != without).any(axis=-1)
     assert changed.sum() > 30  # the box and its arrow
     red, green, blue = (with_obstacle[changed] - without[changed]).T
@@ -169,7 +283,7 @@ def test_recording_renders_a_gif_an_mp4_and_the_episode_picture(recording, tmp_p
     with Image.open(tmp_path / "episode.gif") as gif:
         assert gif.n_frames == SCANS and gif.size == (256, 256) and gif.info["duration"] == 100
     with Image.open(tmp_path / "episode.png") as picture:
-        assert picture.width > 1.5 * picture.height  # overview, last moments and the fusion plot side by side
+        assert picture.width > picture.height  # overview, last moment and the fusion plot over the counts
     import imageio_ffmpeg
 
     render_recording(recording, video=tmp_path / "episode.mp4", config=RenderConfig(size_px=256, fps=5))

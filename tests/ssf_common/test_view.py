@@ -22,6 +22,7 @@ from ssf_common.cli import main
 from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
 
 SUBPROTOCOL = "foxglove.sdk.v1"  # what the foxglove-sdk server speaks (the Foxglove app offers it)
+LEGACY_SUBPROTOCOL = "foxglove.websocket.v1"  # the same protocol's old name: Lichtblick, older Foxglove Studio
 MESSAGE_DATA = 0x01  # binary opcode: subscription id (u32), log time (u64), payload
 URL = re.compile(r"on (ws://[0-9.]+:\d+)")
 
@@ -118,13 +119,18 @@ def publisher():
     pub.close()
 
 
-def test_view_serves_the_graph_with_ros2_schemas_and_wire_cdr_on_loopback(publisher):
+@pytest.mark.parametrize("offered", [[SUBPROTOCOL], [LEGACY_SUBPROTOCOL], [LEGACY_SUBPROTOCOL, SUBPROTOCOL]],
+                         ids=["foxglove-app", "lichtblick", "both"])
+def test_view_serves_the_graph_with_ros2_schemas_and_wire_cdr_on_loopback(publisher, offered):
+    """Clients of either subprotocol name (Lichtblick and older Foxglove Studio offer only the old one) get the topics;
+    each is answered with a name it offered, the new one when it offered both."""
     viewer = subprocess.Popen(ssf("view", "--port", "0"), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     try:
         url = server_url(viewer)
         listening = [c.laddr for c in psutil.Process(viewer.pid).net_connections("tcp") if c.status == "LISTEN"]
-        assert [address.ip for address in listening] == ["127.0.0.1"]  # loopback unless told otherwise
-        with connect(url, subprotocols=[SUBPROTOCOL], open_timeout=10) as ws:
+        assert {address.ip for address in listening} == {"127.0.0.1"}  # loopback unless told otherwise
+        with connect(url, subprotocols=offered, open_timeout=10) as ws:
+            assert ws.subprotocol == (SUBPROTOCOL if SUBPROTOCOL in offered else LEGACY_SUBPROTOCOL)
             channels = advertised(ws, {topics.LIDAR_POINTS, topics.FUSION_STATE})
             for topic, type_name in ((topics.LIDAR_POINTS, "sensor_msgs/msg/PointCloud2"),
                                      (topics.FUSION_STATE, "ssf_interfaces/msg/FusionState")):
@@ -145,6 +151,18 @@ def test_view_serves_the_graph_with_ros2_schemas_and_wire_cdr_on_loopback(publis
         if viewer.poll() is None:
             viewer.kill()
             viewer.wait()
+
+
+def test_a_client_offering_no_foxglove_subprotocol_is_refused(publisher):
+    from websockets.exceptions import InvalidStatus
+
+    viewer = subprocess.Popen(ssf("view", "--port", "0"), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
+    try:
+        with pytest.raises(InvalidStatus, match="HTTP 400"):
+            connect(server_url(viewer), subprotocols=["chat"], open_timeout=10)
+    finally:
+        viewer.send_signal(signal.SIGINT)
+        viewer.wait(timeout=20)
 
 
 @pytest.mark.parametrize(

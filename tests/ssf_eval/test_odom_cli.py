@@ -52,18 +52,47 @@ def test_odom_run_on_a_folder_of_scans(tmp_path, real_scans, method, capsys):
     assert "4 poses" in capsys.readouterr().err
 
 
-def test_odom_run_on_a_bag(tmp_path, real_scans):
+def test_odom_run_on_a_bag_draws_the_truth_when_the_simulator_recorded_it(tmp_path, real_scans, capsys):
+    """A simulator's recording holds the true base_link poses and the sensor's mount: the run writes the true sensor
+    poses beside its own, in the same frame, and says how far its end lies from the true one."""
+    from ssf_common import pose_msgs
+    from ssf_common.conversions import odometry_to_msg
+    from ssf_common.records import OdometryEstimate
+
+    mount, world = make_pose(1.2, 0.0, 1.8, yaw=0.05), make_pose(40.0, -7.0, 0.0, yaw=1.0)  # base_link <- lidar
     bag = tmp_path / "bag"
     with BagWriter(bag) as writer:
         writer.add_topic("/velodyne_points", "sensor_msgs/msg/PointCloud2")
+        writer.add_topic("/sim/ground_truth/odom", "nav_msgs/msg/Odometry")
+        writer.add_topic("/tf", "tf2_msgs/msg/TFMessage")
         for index, scan in enumerate(real_scans):
             stamp = 1_000_000_000 + index * 100_000_000
+            base = world @ POSES[index] @ invert(mount)
+            writer.write("/sim/ground_truth/odom", messages.serialize(odometry_to_msg(
+                OdometryEstimate(stamp, base, np.zeros((6, 6)), frame_id="world"))), stamp)
+            writer.write("/tf", messages.serialize(messages.msg_type("tf2_msgs/msg/TFMessage")(
+                transforms=[pose_msgs.transform_stamped_msg(mount, stamp, "base_link", "lidar")])), stamp)
             writer.write("/velodyne_points", messages.serialize(xyz_to_cloud(scan, messages.header(stamp, "lidar"))), stamp)
     out = tmp_path / "out"
     assert main(["odom", "run", str(bag), "--out", str(out), "--method", "points"]) == 0
     check_poses(out)
     stamps, _ = read_tum(out / "poses_tum.txt")
     assert stamps[0] == pytest.approx(1.0)
+    _, truth = read_tum(out / "truth_tum.txt")
+    np.testing.assert_allclose(truth, POSES, atol=1e-6)  # the sensor's motion, in the first scan's frame
+    assert "m from the true end)" in capsys.readouterr().err
+
+
+def test_odom_run_on_a_bag_without_truth_draws_the_odometry_alone(tmp_path, real_scans):
+    bag = tmp_path / "bag"
+    with BagWriter(bag) as writer:
+        writer.add_topic("/velodyne_points", "sensor_msgs/msg/PointCloud2")
+        for index, scan in enumerate(real_scans[:2]):
+            stamp = 1_000_000_000 + index * 100_000_000
+            writer.write("/velodyne_points", messages.serialize(xyz_to_cloud(scan, messages.header(stamp, "lidar"))), stamp)
+    out = tmp_path / "out"
+    assert main(["odom", "run", str(bag), "--out", str(out), "--method", "points"]) == 0
+    assert (out / "trajectory.png").is_file() and not (out / "truth_tum.txt").exists()
 
 
 def test_odom_run_errors_are_one_line(tmp_path, capsys):

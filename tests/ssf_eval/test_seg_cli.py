@@ -49,8 +49,16 @@ def test_seg_estimate_writes_columns_and_obstacles(tmp_path, capsys):
     assert ((columns[:, 0] > 0.5) == label).all() and (columns[label, 2] > 0).all() and (columns[~label, 2] == 0).all()
     assert (label == pair.dynamic1).mean() > 0.97
     found = json.loads(obstacles.read_text())["obstacles"]
-    assert 1 <= len(found) <= 3 and all(len(item["centre"]) == 3 and item["points"] > 0 for item in found)
-    assert "converged" in capsys.readouterr().err
+    assert all(len(item["centre"]) == 3 and item["points"] > 0 for item in found)
+    assert all(item["kind"] in ("vehicle", "pedestrian", "unknown") for item in found)
+    moving = [item for item in found if item["moving"]]
+    still = [item for item in found if not item["moving"]]
+    assert 1 <= len(moving) <= 3 and all(item["id"] > 0 for item in moving)
+    # the scene's walls and poles stand still beside the road: written too, with no velocity
+    assert len(still) >= 4 and all(item["velocity"] == [0.0, 0.0, 0.0] for item in still)
+    for item in still:  # none of them is a moving object written twice
+        assert all(np.hypot(*np.subtract(item["centre"][:2], other["centre"][:2])) > 1.0 for other in moving)
+    assert "moving and" in capsys.readouterr().err
 
 
 def test_eval_seg_table_json_and_config(export_dir, tmp_path, capsys):

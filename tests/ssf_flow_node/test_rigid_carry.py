@@ -14,7 +14,10 @@ import pytest
 from ssf_common.config import build
 from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_flow_node.core.estimator import FlowConfig, make_estimator
-from ssf_flow_node.core.rigid import Carried, Clusters, RigidConfig, cluster_motions
+from ssf_flow_node.core.rigid.carry import Carried
+from ssf_flow_node.core.rigid.clusters import Clusters
+from ssf_flow_node.core.rigid.config import RigidConfig
+from ssf_flow_node.core.rigid.motions import cluster_motions
 
 STEP = np.array([0.35, 0.0, 0.0])  # 3.5 m/s along the flank, over one 0.1 s pair
 FLOOR = 0.05  # the flank's noise floor (m): standing still misses its surfaces by less

@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ssf_flow_node.core.rigid import Bands, Clusters, RigidConfig, cluster_motions
+from ssf_flow_node.core.rigid.clusters import Clusters
+from ssf_flow_node.core.rigid.config import RigidConfig
+from ssf_flow_node.core.rigid.ends import Bands
+from ssf_flow_node.core.rigid.motions import cluster_motions
 
 
 def flank(start: float, length: float, spacing: float) -> np.ndarray:

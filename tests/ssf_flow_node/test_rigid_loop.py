@@ -149,15 +149,16 @@ def test_the_alignment_without_movers_wins_where_only_it_is_a_change_a_vehicle_c
     """Accelerating in a queue, traffic moving with the ego pulls the alignment on every point to standing still: 0.1 m
     from the previous pair's motion in one scan (10 m/s²), just beyond the tolerance that would compare the two."""
     from ssf_flow_node.core.rigid import RigidConfig
+    from ssf_flow_node.core.rigid.ego import nearer_prior
 
     def forward(metres: float) -> np.ndarray:
         return make_pose(-metres, 0.0, 0.0, 0.0)  # scan t into scan t+1 as the sensor drives forward
 
-    estimator = make_estimator("rigid")
+    config = RigidConfig()
     prior, base = forward(0.087), forward(-0.014)
-    assert estimator.nearer_prior(forward(0.090), base, prior)  # the masked alignment: 3 mm from constant velocity
-    assert not estimator.nearer_prior(forward(0.0), base, prior)  # 8.7 cm off in 0.1 s: beyond a vehicle as well
-    assert not estimator.nearer_prior(forward(0.090), forward(0.030), prior)  # 5.7 cm: a hard brake, and it agrees
-    faster = make_estimator("rigid", FlowConfig(rigid=RigidConfig(dt=0.05)))  # at 20 Hz a vehicle changes 4 times less
-    assert not faster.nearer_prior(forward(0.060), base, prior)
-    assert not estimator.nearer_prior(forward(0.090), base, prior, dynamic_share=0.6)  # a mask hiding most of the scan
+    assert nearer_prior(forward(0.090), base, prior, config)  # the masked alignment: 3 mm from constant velocity
+    assert not nearer_prior(forward(0.0), base, prior, config)  # 8.7 cm off in 0.1 s: beyond a vehicle as well
+    assert not nearer_prior(forward(0.090), forward(0.030), prior, config)  # 5.7 cm: a hard brake, and it agrees
+    faster = RigidConfig(dt=0.05)  # at 20 Hz a vehicle changes 4 times less
+    assert not nearer_prior(forward(0.060), base, prior, faster)
+    assert not nearer_prior(forward(0.090), base, prior, config, dynamic_share=0.6)  # a mask hiding most of the scan

@@ -22,7 +22,9 @@ from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_common.geometry.ground import height_above_ground
 from ssf_eval.flow.metrics import flow_metrics
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
-from ssf_flow_node.core.rigid import ClusterMotions, Clusters, RigidConfig, cluster_motions
+from ssf_flow_node.core.rigid.clusters import Clusters
+from ssf_flow_node.core.rigid.config import RigidConfig
+from ssf_flow_node.core.rigid.motions import ClusterMotions, cluster_motions
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "far_clusters.npz"
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 
 from ssf_common.geometry.clustering import angular_spacing, spacing_components, voxel_components
-from ssf_flow_node.core.rigid import Fit, RigidConfig, explains
+from ssf_flow_node.core.rigid.config import RigidConfig
+from ssf_flow_node.core.rigid.fits import Fit, explains
 from ssf_seg_node.core.geometric import GeometricConfig, GeometricSegmenter
 
 ANGLES = np.radians([0.35, 0.43])  # a 64-beam sensor's column and ring spacing

@@ -21,7 +21,7 @@ def describe(info: BagInfo, timeline: Timeline | None = None) -> str:
         info = info._replace(start_ns=timeline.start_ns, end_ns=timeline.end_ns)
     lines = [
         f"{'Files:':<{label}}{_join(f.path.name for f in info.files)}",
-        f"{'Bag size:':<{label}}{_size(sum(f.size_bytes for f in info.files))}",
+        f"{'Bag size:':<{label}}{size_text(sum(f.size_bytes for f in info.files))}",
         f"{'Storage id:':<{label}}{info.storage}",
         f"{'ROS Distro:':<{label}}{info.ros_distro or 'unknown'}",
         f"{'Metadata version:':<{label}}{info.metadata_version if info.metadata_version is not None else 'none (no metadata.yaml)'}",
@@ -132,7 +132,8 @@ def _join(names: Any) -> str:
     return "\n                   ".join(names)
 
 
-def _size(count: int) -> str:
+def size_text(count: int) -> str:
+    """A byte count as rosbag2 prints it: `5.6 MiB`."""
     size = float(count)
     for unit in ("B", "KiB", "MiB"):
         if size < 1024:

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from collections.abc import Sequence
+from collections import Counter
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -18,6 +19,7 @@ if TYPE_CHECKING:
 DISCOVERY_PERIOD_S = 0.25
 FLUSH_CHECK_PERIOD_S = 0.25
 RECORD_DEPTH = 100
+CLOCK_TOPIC = "/clock"
 
 
 def default_output_dir(now: float | None = None) -> Path:
@@ -87,19 +89,57 @@ def to_bag_profiles(offers: Sequence[Any]) -> tuple[Qos, ...]:
     return parse_profiles([qos_to_rosbag2(q) for q in offers], "recorder")
 
 
+class LogClock:
+    """Log time from the graph's /clock, as `ros2 bag record --use-sim-time` takes it: each message is logged at the
+    latest /clock value; those that arrive before the first /clock wait for it (at 0 when none comes)."""
+
+    def __init__(self, node: Any, writer: BagWriter) -> None:
+        from ssf_common import messages
+        from ssf_common.middleware import QOS_CLOCK
+
+        self._messages = messages
+        self.writer = writer
+        self.now_ns: int | None = None
+        self.waiting: list[tuple[str, bytes]] = []
+        node.create_subscription("rosgraph_msgs/msg/Clock", CLOCK_TOPIC, self.on_clock, QOS_CLOCK)
+
+    def on_clock(self, msg: Any) -> None:
+        """Advance the log time; the first tick releases the messages that waited for it."""
+        self.now_ns = self._messages.stamp_ns(msg.clock)
+        self.release()
+
+    def write(self, topic: str, data: bytes) -> None:
+        """Log one message at the current /clock time."""
+        if self.now_ns is None:
+            self.waiting.append((topic, bytes(data)))
+        else:
+            self.writer.write(topic, data, self.now_ns)
+
+    def release(self) -> None:
+        """Write the messages that waited for the first /clock (at 0 when it never came)."""
+        for topic, data in self.waiting:
+            self.writer.write(topic, data, self.now_ns or 0)
+        self.waiting.clear()
+
+
 def make_recorder_class():
     """The recorder node class (built lazily so `ssf --help` does not import the middleware)."""
     from ssf_common.middleware import Node
 
     class Recorder(Node):
-        """Subscribes (raw CDR) to the chosen topics or to every topic that appears, writing each message."""
+        """Subscribes (raw CDR) to the chosen topics or to every topic that appears, writing each message (every
+        n-th of a thinned topic) at its log time: wall time, or the graph's /clock with `sim_time`."""
 
-        def __init__(self, writer: BagWriter, topics: Sequence[str] | None, argv: list[str] | None = None) -> None:
+        def __init__(self, writer: BagWriter, topics: Sequence[str] | None, argv: list[str] | None = None, *,
+                     sim_time: bool = False, every: Mapping[str, int] | None = None) -> None:
             super().__init__("ssf_recorder", argv=argv)
             self.writer = writer
             self.wanted = None if not topics else set(topics)
+            self.every = dict(every or {})
+            self.received: Counter[str] = Counter()
             self.offers = OfferedQos(self)
             self.skipped: set[str] = set()
+            self.log_clock = LogClock(self, writer) if sim_time else None
             self.create_timer(DISCOVERY_PERIOD_S, self.discover)
             self.create_timer(FLUSH_CHECK_PERIOD_S, self.writer.flush_if_due)
             self.call_soon(self.discover)
@@ -123,19 +163,26 @@ def make_recorder_class():
             """Start recording one topic."""
             offers = self.offers.of(topic)
             self.writer.add_topic(topic, type_name, to_bag_profiles(offers))
-            clock = self.get_clock()
-            self.create_subscription(
-                type_name,
-                topic,
-                lambda data, name=topic: self.writer.write(name, data, clock.now_ns()),
-                request_qos(offers),
-                raw=True,
-            )
-            self.get_logger().info(f"recording {topic} ({type_name})")
+            self.create_subscription(type_name, topic, lambda data, name=topic: self.take(name, data),
+                                     request_qos(offers), raw=True)
+            thinned = f", one message in {self.every[topic]}" if self.every.get(topic, 1) > 1 else ""
+            self.get_logger().info(f"recording {topic} ({type_name}){thinned}")
+
+        def take(self, topic: str, data: bytes) -> None:
+            """Write one received message (unless its topic is thinned and this is not its turn)."""
+            self.received[topic] += 1
+            if (self.received[topic] - 1) % self.every.get(topic, 1):
+                return
+            if self.log_clock is not None:
+                self.log_clock.write(topic, data)
+            else:
+                self.writer.write(topic, data, self.get_clock().now_ns())
 
         def on_shutdown(self) -> None:
             """Write what already arrived, then close the bag: summary, metadata record and metadata.yaml."""
             self.deliver_received()
+            if self.log_clock is not None:
+                self.log_clock.release()
             self.writer.close()
             self.get_logger().info(f"wrote {self.writer.message_count} messages to {self.writer.directory}")
 
@@ -152,14 +199,37 @@ def run_record(args: argparse.Namespace) -> int:
     config = build(BagWriterConfig, {k: v for k, v in settings.items() if v is not None}, source="ssf record")
     directory = Path(args.output) if args.output else default_output_dir()
     for topic in args.topics:
-        if not topic.startswith("/"):
-            raise ConfigError(f"topic '{topic}' must be absolute (start with '/')")
-    writer = BagWriter(directory, config, custom_data={"recorder": "ssf record", "writer_config": dump(config)})
-    print(f"recording to {directory}", file=sys.stderr)
+        check_topic_name(topic)
+    every = parse_every(args.every)
+    custom = {"recorder": "ssf record", "writer_config": dump(config), "log_time": "/clock" if args.use_sim_time
+              else "wall clock"}
+    if every:
+        custom["thinned"] = ", ".join(f"{topic}: one message in {n}" for topic, n in every.items())
+    writer = BagWriter(directory, config, custom_data=custom)
+    print(f"recording to {directory}" + (" (log time from /clock)" if args.use_sim_time else ""), file=sys.stderr)
     recorder = make_recorder_class()
-    status = run(lambda argv: recorder(writer, args.topics, argv=argv), argv=[])
+    status = run(lambda argv: recorder(writer, args.topics, argv=argv, sim_time=args.use_sim_time, every=every),
+                 argv=[])
     writer.close()
     return status
+
+
+def check_topic_name(topic: str) -> str:
+    """ConfigError, in one line, for a topic name that is not absolute."""
+    if not topic.startswith("/"):
+        raise ConfigError(f"topic '{topic}' must be absolute (start with '/')")
+    return topic
+
+
+def parse_every(items: Sequence[str]) -> dict[str, int]:
+    """`--every TOPIC:N` flags as {topic: n}; ConfigError, in one line, for a malformed one."""
+    every: dict[str, int] = {}
+    for item in items:
+        topic, _, count = item.rpartition(":")
+        if not topic or not count.isdigit() or int(count) < 1:
+            raise ConfigError(f"--every {item!r}: expected TOPIC:N with N a whole number from 1 (e.g. /ssf/semantic_flow:2)")
+        every[check_topic_name(topic)] = int(count)
+    return every
 
 
 def add_parser(top: argparse._SubParsersAction) -> None:
@@ -167,6 +237,11 @@ def add_parser(top: argparse._SubParsersAction) -> None:
     parser = top.add_parser("record", help="record topics to a rosbag2 directory (MCAP)", description=run_record.__doc__)
     parser.add_argument("topics", nargs="*", metavar="TOPIC", help="topics to record (all when none is named)")
     parser.add_argument("-o", "--output", metavar="DIR", help="bag directory to create (default bags/<time>)")
+    parser.add_argument("--use-sim-time", action="store_true",
+                        help="log each message at the graph's /clock time (as ros2 bag record --use-sim-time), so "
+                        "that the bag's duration and its replay follow simulated time")
+    parser.add_argument("--every", action="append", default=[], metavar="TOPIC:N",
+                        help="record only every N-th message of TOPIC, starting with the first (repeatable)")
     parser.add_argument("--chunk-bytes", type=int, help="finish a chunk at this size (default 4 MiB)")
     parser.add_argument("--chunk-seconds", type=float, help="finish a chunk at least this often (default 1 s)")
     parser.set_defaults(func=run_record)

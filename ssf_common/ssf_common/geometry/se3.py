@@ -124,6 +124,15 @@ def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     return (points @ transform[:3, :3].T + transform[:3, 3]).astype(np.float32)
 
 
+def own_motion(transform: np.ndarray, points: np.ndarray, flow: np.ndarray) -> np.ndarray:
+    """Per point, its flow less the flow the rigid transform gives it (T p - p): how it moves on its own (float32; the
+    rotation enters as R - I, whose small entries keep float32 exact to micrometres at 100 m)."""
+    transform = np.asarray(transform, np.float64)
+    rotation = (transform[:3, :3] - np.eye(3)).astype(np.float32)
+    points, flow = np.asarray(points, np.float32)[:, :3], np.asarray(flow, np.float32)
+    return flow - points @ rotation.T - transform[:3, 3].astype(np.float32)
+
+
 def rigid_flow(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Flow of points that move with a rigid transform: T p - p."""
     return transform_points(transform, points) - points

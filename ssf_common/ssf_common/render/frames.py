@@ -43,6 +43,12 @@ class RenderConfig(Section):
     ego_length: float = Field(4.6, gt=0.0)
     ego_width: float = Field(1.9, gt=0.0)
     seed: int = Field(0, ge=0, description="random subset of points")
+    moving_speed: float = Field(0.5, ge=0.0, description="true agents and perceived obstacles at least this fast (m/s) "
+                                "are moving; slower ones stand still")
+    count_radius_m: float = Field(40.0, gt=0.0, description="agents and obstacles farther from the ego are not counted")
+    seen_points: int = Field(10, ge=1, description="a true moving agent counts as seen with this many scan points on it")
+    match_margin_m: float = Field(2.0, ge=0.0, description="a perceived obstacle whose centre lies this close to a true "
+                                  "agent's box is on that agent")
 
 
 @dataclass(frozen=True)
@@ -59,6 +65,7 @@ class ViewFrame:
     plan: np.ndarray | None = None  # (H, 2) planned positions
     path: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))  # (K, 2) the ego's true path so far
     odometry_path: np.ndarray | None = None  # (K, 2) the odometry's estimate of it
+    judged: Any = None  # counts.Judgement of the perceived obstacles against the true agents, when known
 
 
 @dataclass(frozen=True)
@@ -100,6 +107,7 @@ class FusionLog:
     iterations: np.ndarray  # (M,) int
     delta_total: np.ndarray  # (M,)
     converged: np.ndarray  # (M,) bool
+    delta_mask: np.ndarray | None = None  # (M,) mean change of the mask: the segmentation against the mask it started from
 
 
 @dataclass
@@ -117,6 +125,10 @@ class EpisodeTrack:
     scan_stamps: np.ndarray
     segmented_stamps: np.ndarray
     outcome: str = ""
+    outcome_time_s: float = 0.0  # the simulated time of the last episode result
+    scenario: str = ""  # of the last episode result
+    seed: int = 0
+    agent_count: int = 0
 
     def world_from(self, frame_id: str, stamp_ns: int) -> np.ndarray | None:
         """world <- frame_id at a stamp, from the true pose (None when it cannot be placed)."""
@@ -178,7 +190,7 @@ def read_track(bag: Any) -> EpisodeTrack:
     truth, odometry, mounts, agents, perceived, plans = [], [], {}, {}, {}, []
     fusion: list[tuple[int, int, float, bool]] = []
     clouds: dict[str, list[int]] = {name: [] for name in CLOUD_TOPICS}
-    odometry_frame, outcome = "odom", ""
+    odometry_frame, episode = "odom", None
     for message in bag.messages(present):
         if message.topic in CLOUD_TOPICS:
             clouds[message.topic].append(header_stamp(message.data))
@@ -201,17 +213,22 @@ def read_track(bag: Any) -> EpisodeTrack:
             odometry.append((estimate.stamp_ns, estimate.pose))
             odometry_frame = estimate.frame_id
         elif message.topic == topics.FUSION_STATE:
-            fusion.append((messages.stamp_ns(msg.header.stamp), msg.iteration, msg.delta_total, msg.converged))
+            fusion.append((messages.stamp_ns(msg.header.stamp), msg.iteration, msg.delta_total, msg.converged,
+                           msg.delta_mask))
         elif message.topic == topics.EPISODE:
-            outcome = _outcome_name(msg.outcome)
-    rows = np.array(fusion, dtype=np.float64).reshape(-1, 4)
+            episode = msg
+    rows = np.array(fusion, dtype=np.float64).reshape(-1, 5)
     return EpisodeTrack(
         truth=StampedPoses.of(truth), mounts=mounts, agents=agents, perceived=perceived,
         plans=sorted(plans, key=lambda plan: plan.stamp_ns), odometry=StampedPoses.of(odometry),
         odometry_frame=odometry_frame,
-        fusion=FusionLog(rows[:, 0].astype(np.int64), rows[:, 1].astype(int), rows[:, 2], rows[:, 3].astype(bool)),
+        fusion=FusionLog(rows[:, 0].astype(np.int64), rows[:, 1].astype(int), rows[:, 2], rows[:, 3].astype(bool),
+                         rows[:, 4]),
         scan_stamps=np.unique(clouds[topics.LIDAR_POINTS]).astype(np.int64),
-        segmented_stamps=np.unique(clouds[topics.SEMANTIC_FLOW]).astype(np.int64), outcome=outcome,
+        segmented_stamps=np.unique(clouds[topics.SEMANTIC_FLOW]).astype(np.int64),
+        **({} if episode is None else {"outcome": _outcome_name(episode.outcome), "outcome_time_s": float(episode.time),
+                                       "scenario": episode.scenario, "seed": int(episode.seed),
+                                       "agent_count": int(episode.num_agents)}),
     )
 
 
@@ -249,9 +266,10 @@ def schedule(track: EpisodeTrack, config: RenderConfig) -> list[FrameInput]:
     return frames
 
 
-def recording_frames(bag: Any, track: EpisodeTrack, config: RenderConfig,
-                     frames: list[FrameInput] | None = None) -> Iterator[ViewFrame]:
-    """The second pass: stream the clouds, yield the scheduled frames in order (each cloud decoded once)."""
+def recording_frames(bag: Any, track: EpisodeTrack, config: RenderConfig, frames: list[FrameInput] | None = None,
+                     judged: dict[int, Any] | None = None) -> Iterator[ViewFrame]:
+    """The second pass: stream the clouds, yield the scheduled frames in order (each cloud decoded once), each with
+    the judgement of its perceived obstacles when `judged` (by scan stamp, see `counts.judge_recording`) has one."""
     frames = schedule(track, config) if frames is None else frames
     uses: dict[tuple[str, int], int] = {}
     for item in frames:
@@ -269,15 +287,19 @@ def recording_frames(bag: Any, track: EpisodeTrack, config: RenderConfig,
         while position < len(frames) and (frames[position].topic, frames[position].cloud_stamp_ns) in ready:
             item = frames[position]
             position += 1
-            frame = _frame(item, ready, uses, track, config)
+            frame = _frame(item, ready, uses, track, config, judged or {})
             if frame is not None:
                 yield frame
     for item in frames[position:]:  # inputs that never decoded: skipped
-        if (item.topic, item.cloud_stamp_ns) in ready and (frame := _frame(item, ready, uses, track, config)):
+        if (item.topic, item.cloud_stamp_ns) in ready and (frame := _frame(item, ready, uses, track, config,
+                                                                            judged or {})):
             yield frame
 
 
-def _frame(item: FrameInput, ready: dict, uses: dict, track: EpisodeTrack, config: RenderConfig) -> ViewFrame | None:
+def _frame(item: FrameInput, ready: dict, uses: dict, track: EpisodeTrack, config: RenderConfig,
+           judged: dict[int, Any]) -> ViewFrame | None:
+    """The frame of one scheduled scan: the ego at the scan's time; the points, the true agents and the perceived
+    obstacles at the time of the cloud drawn (the newest segmentation)."""
     key = (item.topic, item.cloud_stamp_ns)
     cloud = ready[key]
     uses[key] -= 1
@@ -295,11 +317,12 @@ def _frame(item: FrameInput, ready: dict, uses: dict, track: EpisodeTrack, confi
     odometry = track.odometry.matrices[: int(np.searchsorted(track.odometry.stamps, item.stamp_ns, side="right"))]
     return ViewFrame(
         stamp_ns=item.stamp_ns, ego_pose=ego, points=points, labels=labels, instances=instances,
-        agents=track.in_world(_at_or_before(track.agents, item.stamp_ns, max_age)),
+        agents=track.in_world(_at_or_before(track.agents, item.cloud_stamp_ns, max_age)),
         perceived=track.in_world(track.perceived.get(perceived_stamp)) if perceived_stamp is not None else None,
         plan=None if plan_world is None else (plan.states[:, :2] @ plan_world[:2, :2].T + plan_world[:2, 3]),
         path=track.truth.xy_until(item.stamp_ns),
         odometry_path=None if to_world is None or not len(odometry) else (to_world @ odometry)[:, :2, 3],
+        judged=judged.get(perceived_stamp) if perceived_stamp is not None else None,
     )
 
 

@@ -111,7 +111,9 @@ class RenderSummary(NamedTuple):
 def render_recording(recording: str | Path, *, picture: str | Path | None = None, video: str | Path | None = None,
                      config: RenderConfig | None = None, title: str = "",
                      progress: IO[str] | None = None) -> RenderSummary:
-    """Draw a recorded episode: the picture (route overview, last moments, fusion Δ) and/or the animation."""
+    """Draw a recorded episode: the picture (route overview, last moment, fusion Δ, the perception scan by scan
+    against the truth) and/or the animation."""
+    from ssf_common.render.counts import judge_recording
     from ssf_common.render.draw import draw_episode_picture
     from ssf_common.render.frames import open_track, recording_frames, schedule
 
@@ -128,9 +130,10 @@ def render_recording(recording: str | Path, *, picture: str | Path | None = None
             planned = planned[::every] + planned[-1:] if planned else planned
         if not planned:
             raise DataError(f"{recording}: no scans to draw (no /lidar/points or /ssf/semantic_flow)")
+        judged = judge_recording(bag, track, config)
         overview = OverviewMap(int(OVERVIEW_EVERY_S * NS))
-        frames = _observed(recording_frames(bag, track, config, planned), overview)
-        title = title or f"{Path(recording).resolve().parent.name}"
+        frames = _observed(recording_frames(bag, track, config, planned, judged), overview)
+        title = title or _default_title(track, recording)
         count = 0
         if video is not None:
             start = int(track.truth.stamps[0]) if len(track.truth) else None
@@ -142,9 +145,18 @@ def render_recording(recording: str | Path, *, picture: str | Path | None = None
         if overview.last is None:
             raise DataError(f"{recording}: no scan could be placed in the world (true poses missing)")
         if picture is not None:
-            draw_episode_picture(picture, overview.last, overview.points(), track, config, title)
+            counts = [judged[stamp].counts for stamp in sorted(judged)]
+            draw_episode_picture(picture, overview.last, overview.points(), track, config, title, counts)
     span = (overview.last.stamp_ns - planned[0].stamp_ns) / NS
     return RenderSummary(count, span, Path(picture) if picture else None, Path(video) if video else None)
+
+
+def _default_title(track: Any, recording: str | Path) -> str:
+    """`urban_100, seed 2, 100 agents: demo_20261204_182800` (the episode and the folder the recording is in)."""
+    from ssf_common.render.draw import episode_name
+
+    folder = Path(recording).resolve().parent.name
+    return f"{episode_name(track)}: {folder}" if track.scenario else folder
 
 
 class OverviewMap:

@@ -15,6 +15,11 @@ from ssf_common.viewer import DEFAULT_PORT, LOOPBACK
 
 SCHEMA_ENCODING = "ros2msg"  # the .msg text with its dependencies, as rosbag2 stores it in MCAP
 MESSAGE_ENCODING = "cdr"  # the serialized message with its 4-byte encapsulation header, as rmw hands it over
+SDK_SUBPROTOCOL = "foxglove.sdk.v1"  # what the foxglove-sdk server speaks (the Foxglove app, foxglove_bridge >= 3)
+# The same protocol under its old name: Lichtblick, older Foxglove Studio and foxglove_bridge 0.8 clients offer only it
+LEGACY_SUBPROTOCOL = "foxglove.websocket.v1"
+HANDSHAKE_LIMIT = 16 * 1024  # bytes of an HTTP upgrade request or answer at most
+RELAY_BUFFER = 1 << 20
 
 
 class ViewerConfig(Section):
@@ -73,7 +78,8 @@ class _Subscribers:
 
 
 class FoxgloveServer:
-    """A foxglove-sdk WebSocket server with one channel per advertised topic, in a context of its own."""
+    """A foxglove-sdk WebSocket server with one channel per advertised topic, in a context of its own, behind a
+    front that lets clients of either subprotocol name in (see `SubprotocolFront`)."""
 
     def __init__(self, config: ViewerConfig) -> None:
         import foxglove
@@ -83,18 +89,21 @@ class FoxgloveServer:
         self._context = foxglove.Context()
         self._channels: dict[str, Any] = {}
         self._listener = _Subscribers()
+        self._front = SubprotocolFront(config.host, config.port)
         try:
             self._server = foxglove.start_server(
-                name=config.name, host=config.host, port=config.port, context=self._context,
+                name=config.name, host=LOOPBACK, port=0, context=self._context,
                 server_listener=self._listener, capabilities=[Capability.Time],
             )
         except Exception as err:  # noqa: BLE001 - the SDK raises its own error types for bind failures
-            raise ConfigError(f"cannot listen on {config.host}:{config.port} ({err})") from None
+            self._front.stop()
+            raise ConfigError(f"cannot start the Foxglove server on {LOOPBACK} ({err})") from None
+        self._front.start((LOOPBACK, self._server.port))
 
     @property
     def port(self) -> int:
         """The port the server listens on (the chosen one when the config said 0)."""
-        return self._server.port
+        return self._front.port
 
     @property
     def url(self) -> str:
@@ -140,6 +149,148 @@ class FoxgloveServer:
 
     def stop(self) -> None:
         """Close every connection and stop listening."""
+        self._front.stop()
         for channel in self._channels.values():
             channel.close()
         self._server.stop()
+
+
+class SubprotocolFront:
+    """Listens where the viewer was asked to and relays each client, byte for byte, to the foxglove-sdk server on
+    loopback. The SDK accepts only the subprotocol name `foxglove.sdk.v1`; a client that offers only
+    `foxglove.websocket.v1` (the same protocol under its old name) has its upgrade request carry the new name on the
+    way in and the answer the old one on the way out. Everything after the handshake passes unchanged."""
+
+    def __init__(self, host: str, port: int) -> None:
+        try:
+            infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+            family, _, _, _, address = infos[0]
+            self._listener = socket.create_server(address[:2], family=family, backlog=16)
+        except OSError as err:
+            raise ConfigError(f"cannot listen on {host}:{port} ({getattr(err, 'strerror', None) or err})") from None
+        self.port: int = self._listener.getsockname()[1]
+        self._backend: tuple[str, int] | None = None
+        self._sockets: set[socket.socket] = set()
+        self._lock = threading.Lock()
+        self._stopped = threading.Event()
+
+    def start(self, backend: tuple[str, int]) -> None:
+        """Accept clients, relaying them to `backend`."""
+        self._backend = backend
+        threading.Thread(target=self._accept, daemon=True, name="viewer-front").start()
+
+    def _accept(self) -> None:
+        while not self._stopped.is_set():
+            try:
+                client, _ = self._listener.accept()
+            except OSError:
+                return
+            threading.Thread(target=self._serve, args=(client,), daemon=True, name="viewer-client").start()
+
+    def _serve(self, client: socket.socket) -> None:
+        """One client: the handshake (renamed when legacy), then both directions relayed until either side closes."""
+        backend = None
+        try:
+            self._track(client)
+            request, rest = read_head(client)
+            request, legacy = to_sdk_request(request)
+            backend = socket.create_connection(self._backend, timeout=10.0)
+            backend.settimeout(None)
+            self._track(backend)
+            for sock in (client, backend):
+                sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+            backend.sendall(request + rest)
+            answer, rest = read_head(backend)
+            client.sendall((to_legacy_answer(answer) if legacy else answer) + rest)
+            upstream = threading.Thread(target=_relay, args=(client, backend), daemon=True, name="viewer-upstream")
+            upstream.start()
+            _relay(backend, client)
+            upstream.join()
+        except (OSError, MessageError):
+            pass  # a client that leaves mid-handshake, or speaks no HTTP: nothing to serve
+        finally:
+            for sock in (client, backend):
+                if sock is not None:
+                    self._untrack(sock)
+                    sock.close()
+
+    def _track(self, sock: socket.socket) -> None:
+        with self._lock:
+            self._sockets.add(sock)
+
+    def _untrack(self, sock: socket.socket) -> None:
+        with self._lock:
+            self._sockets.discard(sock)
+
+    def stop(self) -> None:
+        """Stop accepting and end every relayed connection."""
+        self._stopped.set()
+        self._listener.close()
+        with self._lock:
+            for sock in self._sockets:
+                try:
+                    sock.shutdown(socket.SHUT_RDWR)
+                except OSError:
+                    pass
+
+
+def read_head(sock: socket.socket) -> tuple[bytes, bytes]:
+    """An HTTP head (up to and including the blank line) and whatever arrived after it; MessageError when the peer
+    closes first or the head is too long."""
+    data = b""
+    while b"\r\n\r\n" not in data:
+        if len(data) > HANDSHAKE_LIMIT:
+            raise MessageError(f"an HTTP head longer than {HANDSHAKE_LIMIT} bytes")
+        chunk = sock.recv(4096)
+        if not chunk:
+            raise MessageError("the connection closed during the WebSocket handshake")
+        data += chunk
+    end = data.index(b"\r\n\r\n") + 4
+    return data[:end], data[end:]
+
+
+def offered_subprotocols(request: bytes) -> list[str]:
+    """The subprotocols a WebSocket upgrade request offers, in its order."""
+    offered = []
+    for line in request.split(b"\r\n")[1:]:
+        name, _, value = line.partition(b":")
+        if name.strip().lower() == b"sec-websocket-protocol":
+            offered += [item.strip().decode("latin-1") for item in value.split(b",") if item.strip()]
+    return offered
+
+
+def to_sdk_request(request: bytes) -> tuple[bytes, bool]:
+    """The upgrade request as the SDK server accepts it, and whether it was renamed (it offered only the old name)."""
+    offered = offered_subprotocols(request)
+    if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
+        return request, False
+    lines = [line for line in request.split(b"\r\n")
+             if line.partition(b":")[0].strip().lower() != b"sec-websocket-protocol"]
+    lines.insert(1, f"Sec-WebSocket-Protocol: {SDK_SUBPROTOCOL}".encode())
+    return b"\r\n".join(lines), True
+
+
+def to_legacy_answer(answer: bytes) -> bytes:
+    """The SDK server's upgrade answer with the subprotocol the legacy client asked for."""
+    lines = answer.split(b"\r\n")
+    for index, line in enumerate(lines):
+        name, _, value = line.partition(b":")
+        if name.strip().lower() == b"sec-websocket-protocol" and value.strip() == SDK_SUBPROTOCOL.encode():
+            lines[index] = name + b": " + LEGACY_SUBPROTOCOL.encode()
+    return b"\r\n".join(lines)
+
+
+def _relay(source: socket.socket, target: socket.socket) -> None:
+    """Copy bytes from one socket to the other until the source closes; then close the target's sending side."""
+    buffer = bytearray(RELAY_BUFFER)
+    view = memoryview(buffer)
+    try:
+        while count := source.recv_into(buffer):
+            target.sendall(view[:count])
+    except OSError:
+        pass
+    finally:
+        try:
+            target.shutdown(socket.SHUT_WR)
+        except OSError:
+            pass

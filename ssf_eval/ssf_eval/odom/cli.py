@@ -185,7 +185,8 @@ def run_odom(args: argparse.Namespace) -> int:
     from ssf_common.checks import require_finite
     from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_common.paths import check_writable_dir
-    from ssf_eval.odom.run import OdomRunConfig, Perceiver, open_source, progress_bar, run_odometry, write_outputs
+    from ssf_common.progress import progress_bar
+    from ssf_eval.odom.run import OdomRunConfig, Perceiver, open_source, run_odometry, write_outputs
     from ssf_flow_node.core.estimator import WHOLE_SCAN
     from ssf_odom_node.core.odometry import make_odometry
 
@@ -202,8 +203,9 @@ def run_odom(args: argparse.Namespace) -> int:
     steps = run_odometry(source, odometry, perceive, progress_bar(max(source.count - 1, 1)))
     written = write_outputs(args.out, steps, config, source)
     last = steps[-1].pose[:3, 3]
-    print(f"{config.odom.method.value} odometry over {source.description}: {len(steps)} poses, last at ({last[0]:.2f}, {last[1]:.2f}, {last[2]:.2f}) m -> "
-          + ", ".join(str(path) for path in written), file=sys.stderr)
+    truth = "" if written.end_error_m is None else f" ({written.end_error_m:.2f} m from the true end)"
+    print(f"{config.odom.method.value} odometry over {source.description}: {len(steps)} poses, last at ({last[0]:.2f}, {last[1]:.2f}, {last[2]:.2f}) m{truth} -> "
+          + ", ".join(str(path) for path in written.paths), file=sys.stderr)
     return 0
 
 

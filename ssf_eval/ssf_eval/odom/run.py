@@ -3,11 +3,11 @@ PointCloud2 topic), with the project's own flow and segmentation, written as KIT
 
 from __future__ import annotations
 
-import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -28,11 +28,20 @@ class OdomRunConfig(Section):
 
 @dataclass(frozen=True)
 class ScanSource:
-    """Scans in order: how many, where from, and an iterator of (stamp_ns, points (N, 3) float32)."""
+    """Scans in order: how many, where from, an iterator of (stamp_ns, points (N, 3) float32), and the true sensor
+    poses at given stamps when the source knows them (a simulator's recording)."""
 
     description: str
     count: int
     scans: Callable[[], Iterator[tuple[int, np.ndarray]]]
+    truth: Callable[[np.ndarray], np.ndarray | None] | None = None
+
+
+class OdomOutputs(NamedTuple):
+    """What `write_outputs` wrote, and how far the last pose lies from the truth (None without one)."""
+
+    paths: list[Path]
+    end_error_m: float | None
 
 
 def open_source(path: Path, topic: str | None = None, period_s: float = 0.1) -> ScanSource:
@@ -67,8 +76,11 @@ def bag_source(path: Path, topic: str | None) -> ScanSource:
     from ssf_common.bags import open_bag
     from ssf_common.pointcloud import decode_cloud
 
+    from ssf_common import topics
+
     with open_bag(path) as bag:
         clouds = {name: info for name, info in bag.topics.items() if info.type_name == POINTCLOUD2}
+        has_truth = topics.GT_ODOM in bag.topics
     if topic is None:
         if len(clouds) != 1:
             raise DataError(f"{path}: {len(clouds)} PointCloud2 topics ({', '.join(sorted(clouds)) or 'none'}); "
@@ -83,7 +95,39 @@ def bag_source(path: Path, topic: str | None) -> ScanSource:
                 msg = bag.decode(message)
                 yield messages.stamp_ns(msg.header.stamp), np.ascontiguousarray(decode_cloud(msg).xyz, dtype=np.float32)
 
-    return ScanSource(f"{clouds[topic].message_count} scans on {topic} of {path}", clouds[topic].message_count, scans)
+    return ScanSource(f"{clouds[topic].message_count} scans on {topic} of {path}", clouds[topic].message_count, scans,
+                      truth=(lambda stamps: bag_truth(path, topic, stamps)) if has_truth else None)
+
+
+def bag_truth(path: Path, topic: str, stamps: np.ndarray) -> np.ndarray | None:
+    """(K, 4, 4) the true poses of the scans' sensor at their stamps, relative to the first (the odometry's frame):
+    the simulator's base_link poses on /sim/ground_truth/odom and the sensor's mount on /tf; None when a stamp has no
+    true pose."""
+    from ssf_common import messages, pose_msgs, topics
+    from ssf_common.bags import open_bag
+    from ssf_common.geometry.se3 import invert
+    from ssf_common.render.frames import StampedPoses
+
+    base, mounts, frame = [], {}, None
+    with open_bag(path) as bag:
+        for message in bag.messages([name for name in (topics.GT_ODOM, topics.TF, topic) if name in bag.topics]):
+            if message.topic == topic:
+                frame = frame or bag.decode(message).header.frame_id
+                continue
+            msg = bag.decode(message)
+            if message.topic == topics.GT_ODOM:
+                base.append((messages.stamp_ns(msg.header.stamp), pose_msgs.matrix_from_pose(msg.pose.pose)))
+            else:
+                for item in msg.transforms:
+                    if item.header.frame_id == "base_link":
+                        mounts[item.child_frame_id] = pose_msgs.matrix_from_transform(item.transform)
+    poses = StampedPoses.of(base)
+    mount = mounts.get(frame or "", np.eye(4))
+    found = [poses.at(int(stamp)) for stamp in stamps]
+    if not found or any(pose is None for pose in found):
+        return None
+    sensor = np.array([pose @ mount for pose in found])
+    return invert(sensor[0]) @ sensor
 
 
 class Perceiver:
@@ -128,48 +172,59 @@ def run_odometry(source: ScanSource, odometry: Odometry, perceive: Perceiver,
     return steps
 
 
-def progress_bar(total: int) -> Callable[[int, float], None]:
-    """A one-line progress bar on stderr."""
-    def show(done: int, elapsed: float) -> None:
-        filled = int(30 * done / max(total, 1))
-        rate = elapsed / max(done, 1)
-        print(f"\r  [{'#' * filled}{'.' * (30 - filled)}] {done}/{total} scans, {rate:.2f} s/scan, "
-              f"{rate * (total - done):.0f} s left", end="" if done < total else "\n", file=sys.stderr, flush=True)
-    return show
-
-
-def write_outputs(out: Path, steps: list[OdomStep], config: OdomRunConfig, source: ScanSource) -> list[Path]:
-    """poses_kitti.txt, poses_tum.txt, config.yaml and trajectory.png under `out`."""
+def write_outputs(out: Path, steps: list[OdomStep], config: OdomRunConfig, source: ScanSource) -> OdomOutputs:
+    """poses_kitti.txt, poses_tum.txt, config.yaml and trajectory.png under `out` (and truth_tum.txt, the true sensor
+    poses in the same frame, when the source has them)."""
     from ssf_common.config import dump
     from ssf_common.dataset.kitti import write_poses, write_tum
 
     poses = np.stack([step.pose for step in steps])
-    stamps = np.array([step.stamp_ns for step in steps], dtype=np.float64) * 1e-9
+    stamps = np.array([step.stamp_ns for step in steps], dtype=np.int64)
     write_poses(out / "poses_kitti.txt", poses)
-    write_tum(out / "poses_tum.txt", stamps, poses)
+    write_tum(out / "poses_tum.txt", stamps * 1e-9, poses)
     try:
         (out / "config.yaml").write_text(f"# ssf odom run on {source.description}\n" + dump(config))
     except OSError as err:
         raise DataError(f"{out}: cannot write config.yaml ({err.strerror})") from None
-    plot_path(poses, f"{config.odom.method.value} odometry: {source.description}", out / "trajectory.png")
-    return [out / name for name in ("poses_kitti.txt", "poses_tum.txt", "config.yaml", "trajectory.png")]
+    truth = source.truth(stamps) if source.truth is not None else None
+    written = [out / name for name in ("poses_kitti.txt", "poses_tum.txt", "config.yaml", "trajectory.png")]
+    if truth is not None:
+        write_tum(out / "truth_tum.txt", stamps * 1e-9, truth)
+        written.append(out / "truth_tum.txt")
+    plot_path(poses, f"{config.odom.method.value} odometry: {source.description}", out / "trajectory.png", truth)
+    end_error = None if truth is None else float(np.linalg.norm(poses[-1, :3, 3] - truth[-1, :3, 3]))
+    return OdomOutputs(written, end_error)
 
 
-def plot_path(poses: np.ndarray, title: str, path: Path) -> Path:
-    """A bird's-eye picture of the trajectory (first scan's frame)."""
+def plot_path(poses: np.ndarray, title: str, path: Path, truth: np.ndarray | None = None) -> Path:
+    """A bird's-eye picture of the trajectory (first scan's frame): start, end, a scale bar, and the truth beside it
+    when there is one."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    figure, axis = plt.subplots(figsize=(6, 5))
-    axis.plot(poses[:, 0, 3], poses[:, 1, 3], "-", color="tab:green", lw=1.5)
-    axis.plot(poses[:1, 0, 3], poses[:1, 1, 3], "o", color="black", label="first scan")
+    from ssf_common.render.draw import add_scale_bar
+
+    xy = poses[:, :2, 3]
+    distance = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    figure, axis = plt.subplots(figsize=(7, 6))
+    if truth is not None:
+        axis.plot(truth[:, 0, 3], truth[:, 1, 3], "-", color="0.6", lw=5, alpha=0.6, label="truth (the simulator)")
+        axis.plot(truth[-1, 0, 3], truth[-1, 1, 3], "x", color="black", ms=9, mew=2, label="true end")
+    axis.plot(xy[:, 0], xy[:, 1], "-", color="tab:green", lw=1.8, label="odometry")
+    axis.plot(xy[0, 0], xy[0, 1], "o", color="white", mec="black", ms=9, label="start (first scan)")
+    axis.plot(xy[-1, 0], xy[-1, 1], "*", color="gold", mec="black", ms=15, label="end")
     axis.set_aspect("equal", adjustable="datalim")
-    axis.set_xlabel("x (m)")
+    axis.margins(0.15)
+    axis.grid(alpha=0.3)
+    axis.set_xlabel("x (m), along the first scan's forward axis")
     axis.set_ylabel("y (m)")
-    axis.set_title(title, fontsize=8)
-    axis.legend(fontsize=7)
+    figure.canvas.draw()  # the limits the aspect settles on, for the scale bar
+    add_scale_bar(axis, float(np.ptp(axis.get_xlim())), colour="black")
+    off = "" if truth is None else f", ends {np.linalg.norm(xy[-1] - truth[-1, :2, 3]):.2f} m from the true end"
+    axis.set_title(f"{title}\n{len(poses)} poses, {distance:.1f} m{off}", fontsize=8)
+    axis.legend(fontsize=7, loc="best")
     try:
         figure.savefig(path, dpi=110, bbox_inches="tight")
     except OSError as err:

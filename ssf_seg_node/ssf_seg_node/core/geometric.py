@@ -16,7 +16,7 @@ from ssf_common.geometry.clustering import angular_neighbours, angular_spacing, 
 from ssf_common.geometry.fitting import batched_kabsch, weighted_kabsch
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_extents, label_means
-from ssf_common.geometry.se3 import transform_points
+from ssf_common.geometry.se3 import own_motion, transform_points
 from ssf_seg_node.core.base import SegInput, SegmentationResult, result_from_slots
 
 
@@ -64,12 +64,12 @@ class GeometricSegmenter:
     def segment(self, points: np.ndarray, flow: np.ndarray, previous: np.ndarray | None = None,
                 ego: np.ndarray | None = None) -> SegmentationResult:
         """Static scene and moving objects of scan t from its flow (and the previous mask as a prior)."""
-        points, flow = np.asarray(points, np.float64)[:, :3], np.asarray(flow, np.float64)
+        points, flow = np.asarray(points, np.float32)[:, :3], np.asarray(flow, np.float32)
         # 1. the ego motion: given, or fitted robustly to the flow of every point
         ego = fit_ego_motion(points, flow, previous, self.config) if ego is None else np.asarray(ego, np.float64)
         # 2. each point's motion relative to the static scene, as a velocity and a speed
-        velocity = (points + flow - transform_points(ego, points)) / self.dt
-        speed = np.linalg.norm(velocity, axis=1)
+        velocity = own_motion(ego, points, flow) / np.float32(self.dt)
+        speed = np.sqrt(np.einsum("ij,ij->i", velocity, velocity))
         # 3. candidates: off-ground points faster than the threshold (a lower one where the prior says dynamic)
         threshold = np.full(len(points), self.config.min_speed)
         if previous is not None:
@@ -78,13 +78,14 @@ class GeometricSegmenter:
         if self.config.ground_height > 0:
             moving &= height_above_ground(points, self.config.ground_cell) >= self.config.ground_height
         candidates = np.flatnonzero(moving)
+        near, near_flow = points[candidates].astype(np.float64), flow[candidates].astype(np.float64)
         # 4. clusters of the candidates (linked within a few point spacings); the big-enough, rigidly moving ones are objects
-        spacing = angular_spacing(points[candidates])  # the scan's angular resolution, measured on the candidates
-        labels, count = spacing_components(points[candidates], self.config.cluster_cell, self.config.cluster_reach,
+        spacing = angular_spacing(near)  # the scan's angular resolution, measured on the candidates
+        labels, count = spacing_components(near, self.config.cluster_cell, self.config.cluster_reach,
                                            self.config.min_link, self.config.max_link, spacing=spacing)
-        moving = self.moving_clusters(points[candidates], flow[candidates], labels, count)
+        moving = self.moving_clusters(near, near_flow, labels, count)
         # 5. fragments: neighbouring moving clusters that move as one and fit one object are one object
-        object_of = self.merge_fragments(points[candidates], velocity[candidates], labels, count, moving, spacing)
+        object_of = self.merge_fragments(near, velocity[candidates].astype(np.float64), labels, count, moving, spacing)
         objects = np.unique(object_of[moving])
         # 6. slots: the static scene, then one per moving object, with a probability from how fast each cluster moves
         cluster_speed = label_means(speed[candidates], labels, count)
@@ -147,7 +148,7 @@ def fit_ego_motion(points: np.ndarray, flow: np.ndarray, previous: np.ndarray | 
     """The rigid motion most of the scene's flow follows: reweighted Kabsch (Cauchy weights) on a random subset,
     prior dynamics left out."""
     pick = np.random.default_rng(0).choice(len(points), min(len(points), config.ego_points), replace=False)
-    points, flow = points[pick], flow[pick]
+    points, flow = np.asarray(points, np.float64)[pick], np.asarray(flow, np.float64)[pick]
     prior = np.ones(len(points)) if previous is None else (np.asarray(previous)[pick] <= 0.5).astype(np.float64)
     weights, ego = prior, np.eye(4)
     for _ in range(config.ego_iterations):
