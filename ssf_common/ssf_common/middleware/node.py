@@ -415,8 +415,8 @@ class Node:
         if not self._timers:
             return 0.5
         remaining = self._timers[0].due - self._clock.now_s()
-        if self._clock.use_sim_time:
-            return min(max(remaining, 0.0), 0.005)  # sim time advances with /clock, poll briefly
+        if self._clock.use_sim_time:  # simulated time moves only with a /clock message, an event that wakes the node:
+            return 0.5 if remaining > 0 else 0.0  # nothing to poll for meanwhile
         return max(remaining, 0.0)
 
     def _run_due_timers(self) -> None:
