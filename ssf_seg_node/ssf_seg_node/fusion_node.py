@@ -42,7 +42,7 @@ class FusionNode(Node):
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.loop = DistributedLoop(self.config.fusion, self.config.timeout_s)
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=self._refresh)
+        advertise(self, self.stats, refresh=self._refresh, inputs=(topics.FLOW, topics.MASK))
         self.dt = self.config.dt
         self.last_flow_stamp: int | None = None
         self.sequence = StampSequence()

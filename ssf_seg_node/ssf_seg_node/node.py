@@ -36,7 +36,7 @@ class SegNode(Node):
         self.worker = LatestWorker(self._segment, ("flow",), self.get_logger(), "seg")
         self._compute_ms: list[float] = []
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker), inputs=(topics.FLOW,))
         self.create_timer(report_period, self._report)
         self.get_logger().info(f"segmenter '{self.segmenter.name}' on {device}")
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
