@@ -181,16 +181,17 @@ def work_condition(before: collections.Counter, after: collections.Counter) -> C
 
 
 class ConditionLog:
-    """Says each condition in one line when it begins, and once more when it is over. A condition that comes back
-    within `repeat_s` of its last line (latency hovering around a limit) is counted instead, and said again, with the
-    count, once it lasts `lasting_s` or `repeat_s` has passed: a lasting fault is never swallowed by the repeat limit."""
+    """Says each condition in one line when it begins, when it gets worse (a higher level is a new condition), and
+    when it is over. A condition that comes back within `repeat_s` of its last line (latency hovering around a limit)
+    is counted instead, and said again, with the count, once it lasts `lasting_s` or `repeat_s` has passed: a lasting
+    fault is never swallowed by the repeat limit."""
 
     def __init__(self, logger: Any, repeat_s: float = 10.0, lasting_s: float = 1.0,
                  clock: Callable[[], float] = time.monotonic) -> None:
         self._logger = logger
         self.repeat_s, self.lasting_s = repeat_s, lasting_s
         self._clock = clock
-        self.active: dict[str, float] = {}  # condition -> since when (clock s)
+        self.active: dict[str, tuple[float, Level]] = {}  # condition -> since when (clock s), its level now
         self._said_at: dict[str, float] = {}
         self._announced: set[str] = set()  # active conditions whose line was said
         self._unsaid: collections.Counter = collections.Counter()  # onsets since the condition's last line
@@ -201,14 +202,18 @@ class ConditionLog:
         now = self._clock()
         if active:
             if key not in self.active:
-                self.active[key] = now
+                self.active[key] = (now, level)
                 if now - self._said_at.get(key, -math.inf) >= self.repeat_s:
                     self._say(key, text, level, now)
                 else:
                     self._unsaid[key] += 1
                     self.repeats[key] += 1
-            elif key not in self._announced and (now - self.active[key] >= self.lasting_s
-                                                 or now - self._said_at[key] >= self.repeat_s):
+                return
+            since, before = self.active[key]
+            self.active[key] = (since, level)
+            if level > before:
+                self._say(key, text, level, now)
+            elif key not in self._announced and (now - since >= self.lasting_s or now - self._said_at[key] >= self.repeat_s):
                 self._say(key, f"{text} (it came back {self._unsaid[key]} times since it was last said)", level, now)
         elif key in self.active:
             del self.active[key]
@@ -247,10 +252,7 @@ def advertise(node: Any, stats: StageStats, refresh: Callable[[], None] | None =
         conditions = [Condition(state.topic, state.level, state.text) for state in states if state.level > Level.OK]
         for state in states:
             if state.silent_s is not None:  # before its first message an input is waiting, not failing: not logged
-                log.update(f"{state.topic} stale", state.level >= Level.WARN, state.text, Level.WARN,
-                           f"{state.topic} fresh again")
-                log.update(f"{state.topic} silent", state.level == Level.ERROR, state.text, Level.ERROR,
-                           f"{state.topic} heard again")
+                log.update(state.topic, state.level > Level.OK, state.text, state.level, f"{state.topic} fresh again")
         work = work_condition(last_counts, stats.counts)
         last_counts = collections.Counter(stats.counts)
         log.update("work", work is not None, work.text if work else "", Level.ERROR, "inputs answered again")

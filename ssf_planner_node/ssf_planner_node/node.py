@@ -68,8 +68,10 @@ class PlannerNode(Node):
         self.stats = StageStats(self.get_name())
         diagnostics = advertise(self, self.stats, refresh=self._refresh, inputs=(topics.ODOM, topics.OBSTACLES))
         self.log = ConditionLog(self.get_logger(), diagnostics.repeat_s, diagnostics.lasting_s)
+        self.waiting = False  # the newest odometry came while the obstacles were stale: it plans when they come
         self.create_timer(self.config.control_period, self.watchdog)  # behaviour: the node's (simulated) clock ...
-        self.create_timer(self.config.control_period, self.watchdog, clock=self.get_steady_clock())  # ... liveness
+        self.create_timer(self.config.control_period, lambda: self.watchdog(steady=True),  # ... and liveness
+                          clock=self.get_steady_clock())
         self.create_timer(report_period, self._report)
         source = "parameter route_waypoints" if self.planner.route is not None else route_topic
         self.get_logger().info(f"{self.config.model.value} MPC, horizon {self.config.horizon} x {self.config.dt:g} s, "
@@ -129,6 +131,8 @@ class PlannerNode(Node):
         self.log.update("bad obstacles", False, over=f"{topics.OBSTACLES} good again")
         if self.inputs.take(Source.OBSTACLES, obstacles.stamp_ns, *self._clocks()):
             self.obstacles = obstacles
+            if self.waiting and self.odometry is not None:
+                self._tick(self.odometry)
 
     def _ego_in(self, frame_id: str) -> np.ndarray:
         """Where the car is (x, y) in a frame obstacles come in: its origin for the car's own frames, else where the
@@ -162,13 +166,12 @@ class PlannerNode(Node):
         return max(self.config.max_latency_s, self.config.stale_after_s)
 
     def _tick(self, odometry: OdometryEstimate) -> None:
-        """One plan from the odometry carried forward to now, with the newest obstacles; a brake when an input is
-        stale."""
+        """One plan from the odometry carried forward to now, with the newest obstacles. While they are stale it
+        waits for them (a scan's obstacles may come just after its odometry: braking then would release a lockstep
+        simulator's step for nothing); the watchdog brakes if they stay stale."""
         clock_ns, steady_ns = self._clocks()
-        stale = self.inputs.stale(clock_ns, steady_ns)
-        if stale:
-            self.inputs.braked(clock_ns, steady_ns)
-            self._publish_step(self._blind_brake(odometry, stale), odometry.stamp_ns)
+        self.waiting = bool(self.inputs.stale(clock_ns, steady_ns))
+        if self.waiting:
             return
         state = self._now(state_of(odometry))
         obstacles, capped = self._obstacles_now(odometry)
@@ -203,7 +206,7 @@ class PlannerNode(Node):
         """Say when braking starts (each reason a condition of its own) and when the car may drive again."""
         key = reason.split(" (")[0]
         for other in [name for name in self.log.active if name.startswith("brake ") and name != f"brake {key}"]:
-            self.log.update(other, False, over="inputs fresh again: planning resumes")
+            self.log.update(other, False, over=f"{other[6:]} over" if key else "inputs fresh again: planning resumes")
         if key:
             self.log.update(f"brake {key}", True, f"braking to a stop: {reason}", Level.WARN)
         self.stats.report("braking", Level.WARN if key else Level.OK, f"braking: {reason}")
@@ -301,13 +304,14 @@ class PlannerNode(Node):
         pose[0, 3], pose[1, 3] = after.x, after.y
         return pose
 
-    def watchdog(self) -> None:
-        """Every control period of the node's clock and of the steady clock: while an input is stale, the next braking
-        command (one per control period of whichever clock moves)."""
+    def watchdog(self, steady: bool = False) -> None:
+        """Every control period of the node's clock: while an input is stale (by that clock, or silent by the steady
+        one), the next braking command; and every control period of the steady clock, whatever the node's clock does
+        (standing still in lockstep or with a dead simulator, gone back), while an input is silent."""
         if self.odometry is None:  # nothing commanded yet: the car stands, or its own timeout stops it
             return
         clock_ns, steady_ns = self._clocks()
-        stale = self.inputs.stale(clock_ns, steady_ns)
+        stale = self.inputs.silent(steady_ns) if steady else self.inputs.stale(clock_ns, steady_ns)
         if stale and self.inputs.brake_due(clock_ns, steady_ns):
             self._publish_step(self._blind_brake(self.odometry, stale), clock_ns)
 

@@ -122,5 +122,5 @@ def test_a_node_reports_its_inputs_on_a_steady_timer_while_its_clock_stands_stil
         probe.request_shutdown()
         probe.destroy_node()
     log = capfd.readouterr().err
-    assert log.count("/input stale (0.30 s old)") == 1 and log.count("/input silent for") == 1
+    assert log.count("/input stale (0.30 s old)") == 1 and log.count("/input silent for") == 1  # WARN, then ERROR
     assert "/input fresh again" not in log  # silent is worse than stale, not fresh

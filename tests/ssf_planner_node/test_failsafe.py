@@ -54,16 +54,26 @@ def test_a_clock_gone_back_makes_the_last_drives_inputs_stale_and_a_restarted_st
     assert inputs.stale(200 * MS, 200 * MS, (Source.ODOMETRY,)) == []
 
 
-def test_one_braking_command_per_control_period_of_whichever_clock_moves():
+def test_one_braking_command_per_control_period_paced_by_the_steady_clock_too():
     inputs = watch()
     assert inputs.brake_due(5_000 * MS, 0)
-    assert not inputs.brake_due(5_050 * MS, 50 * MS)
-    assert inputs.brake_due(5_100 * MS, 100 * MS)  # the node's clock moved a period
-    assert not inputs.brake_due(5_100 * MS, 250 * MS)  # it stands still: the steady clock takes over, at half rate
-    assert inputs.brake_due(5_100 * MS, 300 * MS)
-    assert inputs.brake_due(200 * MS, 310 * MS)  # the clock went back: a new sequence
+    assert not inputs.brake_due(5_050 * MS, 50 * MS)  # half a period on either clock
+    assert inputs.brake_due(5_100 * MS, 100 * MS)
+    # lockstep: the brake released a simulator step at once; the next one waits for most of a period of steady time
+    assert not inputs.brake_due(5_200 * MS, 110 * MS)
+    assert inputs.brake_due(5_200 * MS, 190 * MS)
+    assert inputs.brake_due(5_200 * MS, 280 * MS)  # the node's clock stands still: the steady clock paces alone
+    assert inputs.brake_due(200 * MS, 370 * MS)  # the clock went back: a new sequence
     inputs.released()
-    assert inputs.brake_due(210 * MS, 320 * MS)
+    assert inputs.brake_due(210 * MS, 380 * MS)
+
+
+def test_the_steady_watchdog_brakes_only_for_inputs_silent_on_the_steady_clock():
+    inputs = watch(silent_after_s=2.0)
+    assert inputs.silent(10_000 * MS) == []  # nothing heard yet: nothing fell silent
+    inputs.take(Source.ODOMETRY, 5_000 * MS, clock_ns=5_000 * MS, steady_ns=1_000 * MS)
+    inputs.take(Source.OBSTACLES, 5_000 * MS, clock_ns=5_000 * MS, steady_ns=2_500 * MS)
+    assert [s.reason for s in inputs.silent(3_100 * MS)] == ["stale_odometry"]
 
 
 def test_braking_starts_from_the_lower_of_commanded_and_measured_speed_on_the_same_arc():

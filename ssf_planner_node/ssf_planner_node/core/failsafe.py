@@ -4,9 +4,10 @@ An input the planner needs (odometry, obstacles) is fresh while it keeps coming 
 `stale_periods` sensor periods by the node's clock (simulated time: behaviour), or silent for `silent_after_s` of the
 steady clock (liveness: a stopped simulator, lockstep with a dead stage), it is stale and the car brakes: from the
 lower of the speed last commanded and the speed last measured, each command slower than the last, down to zero, on
-the arc of the last command. One braking command per control period of the node's clock, or of the steady clock while
-the node's clock stands still. An empty obstacle picture right after one with obstacles close to the car is not
-believed (they cannot all have gone in one scan): it is dropped, and the obstacles go stale."""
+the arc of the last command. At most one braking command per control period, paced by the steady clock as well: in
+lockstep each command releases a simulator step, and braking faster than real time would outrun the perception it
+waits for. An empty obstacle picture right after one with obstacles close to the car is not believed (they cannot all
+have gone in one scan): it is dropped, and the obstacles go stale."""
 
 from __future__ import annotations
 
@@ -48,6 +49,7 @@ class Staleness(NamedTuple):
 
 
 RESTART_NS = 1_000_000_000  # stamps this far behind the newest start a new sequence (ssf_common.stamps' RESTART_S)
+PACE = 0.8  # braking commands are at least this share of a control period of steady time apart (timers jitter)
 
 
 class InputWatch:
@@ -75,24 +77,35 @@ class InputWatch:
         limit = self.config.stale_after_s
         for source in sources:
             heard = self.heard.get(source)
+            age = None if heard is None else (clock_ns - heard.clock_ns) * 1e-9
             if heard is None:
                 found.append(Staleness(source, f"no {source.value} yet"))
-                continue
-            age, silent = (clock_ns - heard.clock_ns) * 1e-9, (steady_ns - heard.steady_ns) * 1e-9
-            if age < 0:
+            elif age < 0:
                 found.append(Staleness(source, f"{source.value} from before the clock went back"))
             elif age > limit + 1e-9:
                 found.append(Staleness(source, f"{source.value} {age:.2f} s old (more than {limit:g} s)"))
-            elif silent > self.config.silent_after_s:
+            else:
+                found += self.silent(steady_ns, (source,))
+        return found
+
+    def silent(self, steady_ns: int, sources: tuple[Source, ...] = tuple(Source)) -> list[Staleness]:
+        """The inputs among `sources` that came once and have been silent for silent_after_s of the steady clock:
+        what the steady watchdog brakes for, whatever the node's clock does."""
+        found = []
+        for source in sources:
+            heard = self.heard.get(source)
+            silent = None if heard is None else (steady_ns - heard.steady_ns) * 1e-9
+            if silent is not None and silent > self.config.silent_after_s:
                 found.append(Staleness(source, f"no {source.value} for {silent:.1f} s of steady time"))
         return found
 
     def brake_due(self, clock_ns: int, steady_ns: int) -> bool:
-        """Whether a braking command is due: a control period after the last one by the node's clock, or (the node's
-        clock standing still) two by the steady clock; then it is taken as sent."""
+        """Whether a braking command is due (then it is taken as sent): the first, or one at least most of a control
+        period of steady time after the last (a brake releases a lockstep simulator's step: braking must not race it)
+        with the node's clock a control period on, gone back, or standing still."""
         last = self._last_brake
-        due = (last is None or clock_ns - last[0] >= self.period_ns or clock_ns < last[0]
-               or (clock_ns == last[0] and steady_ns - last[1] >= 2 * self.period_ns))
+        due = last is None or (steady_ns - last[1] >= PACE * self.period_ns
+                               and (clock_ns - last[0] >= self.period_ns or clock_ns <= last[0]))
         if due:
             self._last_brake = (int(clock_ns), int(steady_ns))
         return due
