@@ -206,7 +206,7 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["eval", "nav", "--video-first=1", "--video-dir", bad_output(d, f, folder_too=False)],
     ),
     "bench plan": one_of(
-        lambda d, f: ["bench", "plan", "--obstacles=" + d(st.sampled_from(["a", "1,b", "-1", ",", "1.5", "99"]))],
+        lambda d, f: ["bench", "plan", "--obstacles=" + d(st.sampled_from(["a", "1,b", "-1", ",", "1.5", "100001"]))],
         lambda d, f: ["bench", "plan", f"--ticks={d(st.integers(max_value=0))}"],
         lambda d, f: ["bench", "plan", f"--seed={d(bad_seeds())}"],
         lambda d, f: ["bench", "plan", "--config", hostile_yaml_file(d, f)],

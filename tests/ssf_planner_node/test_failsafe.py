@@ -164,3 +164,12 @@ def test_a_flood_of_obstacles_is_cut_to_the_nearest_and_the_car_still_stops_for_
         speed += float(np.clip(step.command.linear - speed, -6.0 * PERIOD, 3.0 * PERIOD))
         x += speed * PERIOD
     assert speed < 0.2 and x < 30.0 - 1.0 - 2.35
+
+
+def test_the_plan_bench_drives_a_flood_through_the_planners_own_selection():
+    from ssf_planner_node.core.bench import run_bench
+
+    config = build(PlannerConfig, {})
+    flood, few = run_bench(config, 10_000, ticks=3), run_bench(config, 20, ticks=3)
+    assert (flood.obstacles, flood.max_obstacles, flood.max_considered, flood.ticks) == (10_000, 10, 200, 3)
+    assert few.max_obstacles == 20  # up to 50 obstacles every one is in the problem, as before
