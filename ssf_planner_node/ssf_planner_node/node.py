@@ -27,7 +27,8 @@ from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_common.stamps import StampSequence
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.failsafe import InputWatch, Source, Staleness, implausible_emptiness
-from ssf_planner_node.core.frames import PoseHistory, carried_forward, obstacles_in_route_frame, state_of
+from ssf_planner_node.core.frames import (PoseHistory, carried_forward, frame_bridge, obstacles_in_route_frame,
+                                         state_of)
 from ssf_planner_node.core.models import Command
 from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus, VehicleState
 from ssf_planner_node.core.route import Route
@@ -49,6 +50,7 @@ class PlannerNode(Node):
         # the route's frame, as an odometry node's frame would start at the first scan
         self.anchor_odometry = self.declare_parameter("anchor_first_odometry", False).value
         self.anchor: np.ndarray | None = None
+        self.bridge: np.ndarray | None = None  # route frame <- the frame of a restarted odometry node
         self.planner = RdaPlanner(self.config)
         if waypoints:
             self.planner.set_route(self._route_from_parameter(waypoints))
@@ -150,12 +152,14 @@ class PlannerNode(Node):
             self.get_logger().info("odometry stamps jumped back: the stream restarted; the commands sent and the anchor "
                                    "are forgotten")
             self.sent.clear()
-            self.anchor = None
+            self.anchor = self.bridge = None
+            self.odometry = None
         if not self.inputs.take(Source.ODOMETRY, odometry.stamp_ns, *self._clocks()):
             return  # the same stamp again, or a late one: nothing new to plan from
         self.odometry_position = np.array(odometry.pose[:2, 3], dtype=np.float64)
         if self.anchor_odometry:
             odometry = self._anchored(odometry)
+        odometry = self._bridged(odometry)
         self.poses.add(odometry.stamp_ns, odometry.pose)
         self.odometry = odometry
         self._tick(odometry)
@@ -250,6 +254,26 @@ class PlannerNode(Node):
             self.get_logger().info(f"route frame anchored at the first pose in '{odometry.frame_id}'")
         frame = self.planner.route.frame_id if self.planner.route is not None else "odom"
         return replace(odometry, pose=self.anchor @ odometry.pose, frame_id=frame)
+
+    def _bridged(self, odometry: OdometryEstimate) -> OdometryEstimate:
+        """Odometry in the route's frame across a restarted odometry node (a new frame from its first scan, on the same
+        clock): a pose far from where the last one, carried forward by the commands sent since, puts the car is placed
+        there, and every later one with it."""
+        if self.bridge is not None:
+            odometry = replace(odometry, pose=self.bridge @ odometry.pose)
+        if self.odometry is None or odometry.stamp_ns <= self.odometry.stamp_ns:
+            return odometry
+        vehicle = self.config.vehicle
+        expected = carried_forward(state_of(self.odometry), list(self.sent), odometry.stamp_ns, vehicle.max_accel,
+                                   vehicle.max_decel)
+        bridge = frame_bridge(expected, odometry.pose, self.config.failsafe.frame_jump_m)
+        if bridge is None:
+            return odometry
+        jump = float(np.hypot(odometry.pose[0, 3] - expected.x, odometry.pose[1, 3] - expected.y))
+        self.get_logger().warning(f"odometry jumped {jump:.1f} m from where the car is: a new odometry frame (a restarted "
+                                  "odometry node); placed where the commands since its last pose drove the car")
+        self.bridge = bridge if self.bridge is None else bridge @ self.bridge
+        return replace(odometry, pose=bridge @ odometry.pose)
 
     def _obstacles_now(self, odometry: OdometryEstimate) -> tuple[Obstacles | None, bool]:
         """The newest obstacles in the route's frame (None when there are none or they cannot be placed), and whether

@@ -173,3 +173,18 @@ def test_the_plan_bench_drives_a_flood_through_the_planners_own_selection():
     flood, few = run_bench(config, 10_000, ticks=3), run_bench(config, 20, ticks=3)
     assert (flood.obstacles, flood.max_obstacles, flood.max_considered, flood.ticks) == (10_000, 10, 200, 3)
     assert few.max_obstacles == 20  # up to 50 obstacles every one is in the problem, as before
+
+
+def test_a_restarted_odometry_frame_is_placed_where_the_car_is_expected():
+    from ssf_common.geometry.se3 import make_pose, yaw_of
+    from ssf_planner_node.core.frames import frame_bridge
+
+    expected = VehicleState(0, 120.0, -30.0, 0.8, 0.0)  # the last pose carried forward by the commands since
+    assert frame_bridge(expected, make_pose(121.0, -30.5, 0.0, 0.82), 3.0) is None  # odometry as it should be
+    restarted = make_pose(0.0, 0.0, 0.3, 0.0)  # a new odometry node: its frame starts where the car stands
+    bridge = frame_bridge(expected, restarted, 3.0)
+    placed = bridge @ restarted
+    assert placed[:2, 3] == pytest.approx([120.0, -30.0]) and yaw_of(placed) == pytest.approx(0.8)
+    later = bridge @ make_pose(5.0, 0.0, 0.3, 0.0)  # 5 m on in the new frame: 5 m on along the car's heading
+    assert later[:2, 3] == pytest.approx([120.0 + 5 * np.cos(0.8), -30.0 + 5 * np.sin(0.8)])
+    assert frame_bridge(expected, restarted, 0.0) is None  # switched off

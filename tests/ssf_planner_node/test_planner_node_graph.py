@@ -332,3 +332,25 @@ def test_odometry_later_than_the_compensated_latency_is_still_carried_forward_an
         node.inputs.take(source, estimate.stamp_ns if source is Source.ODOMETRY else now - 100_000_000, *node._clocks())
     node._tick(estimate)
     assert "late odometry" in node.said and node.last_command.linear < 6.0  # slowing down towards the capped speed
+
+
+def test_a_restarted_odometry_node_keeps_the_routes_frame(graph, capfd):
+    """A restarted odometry node starts its frame where the car stands: planning on would follow the route from the
+    wrong place. The first pose of the new frame is placed where the commands since the last one drove the car."""
+    from ssf_common.geometry.se3 import make_pose
+
+    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 500.0, 0.0]")
+    for index, stamp in enumerate((0, 100_000_000)):
+        publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(stamp, "odom")))
+        assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == stamp)
+        estimate = OdometryEstimate(stamp, make_pose(60.0 + 0.5 * index), np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]))
+        publishers["odom"].publish(odometry_to_msg(estimate))
+        assert wait_until(lambda: len(states) == index + 1)
+    publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(300_000_000, "odom")))
+    assert wait_until(lambda: node.obstacles.stamp_ns == 300_000_000)
+    restarted = OdometryEstimate(300_000_000, np.eye(4), np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]))
+    publishers["odom"].publish(odometry_to_msg(restarted))
+    assert wait_until(lambda: len(states) == 3)
+    assert node.bridge is not None and node.odometry.pose[0, 3] == pytest.approx(61.5, abs=0.3)  # 0.2 s on at ~5 m/s
+    time.sleep(0.2)
+    assert "odometry jumped 61." in capfd.readouterr().err  # said once

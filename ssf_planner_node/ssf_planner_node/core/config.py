@@ -104,6 +104,10 @@ class FailSafeConfig(Section):
                                 "be gone in one scan; a picture empties only after one with nothing that near); 0: every "
                                 "empty array is believed")
 
+    frame_jump_m: float = Field(3.0, ge=0.0, description="odometry this far (m) from where the last pose, carried "
+                                "forward by the commands sent since, puts the car started a new frame (a restarted "
+                                "odometry node): it is placed there, so that the route keeps its frame; 0: never")
+
     @property
     def stale_after_s(self) -> float:
         """Age (node clock) past which an input is stale."""
