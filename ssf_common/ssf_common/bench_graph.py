@@ -74,7 +74,7 @@ class GraphBench:
 class Probe:
     """Listens to the graph: wall time of each /clock stamp, scans, odometry, commands, diagnostics."""
 
-    def __init__(self) -> None:
+    def __init__(self, spin: bool = True) -> None:
         from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node
 
         self.node = Node("ssf_bench_probe")
@@ -100,7 +100,8 @@ class Probe:
         self.node.create_subscription("diagnostic_msgs/msg/DiagnosticArray", topics.DIAGNOSTICS, self.on_diagnostics,
                                       QOS_DEFAULT)
         self.node.create_subscription("ssf_interfaces/msg/EpisodeResult", topics.EPISODE, self.on_episode, QOS_DEFAULT)
-        self.node.spin_in_thread()
+        if spin:  # a subclass that listens to more spins once its subscriptions are made
+            self.node.spin_in_thread()
 
     def on_episode(self, msg: Any) -> None:
         names = {msg.OUTCOME_RUNNING: "running", msg.OUTCOME_SUCCESS: "success", msg.OUTCOME_COLLISION: "collision",
@@ -163,9 +164,10 @@ class Probe:
         self.node.destroy_node()
 
 
-def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dict[str, Any]] | None = None) -> GraphSpec:
-    """The demo graph without its recorder, the simulator in real time driven by the planner (`episodes` drives back to
-    back, 0: until stopped), with `parameters` set per node name."""
+def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dict[str, Any]] | None = None,
+                     mode: str = "realtime") -> GraphSpec:
+    """The demo graph without its recorder, the simulator in real time (or lockstep, as the demo) driven by the planner
+    (`episodes` drives back to back, 0: until stopped), with `parameters` set per node name."""
     graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
     parameters = parameters or {}
     nodes = []
@@ -173,10 +175,10 @@ def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dic
         if node.executable == "ssf":
             continue
         if node.executable == "sim_bridge":
-            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": "realtime",
+            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": mode,
                                                           "driver": "none", "duration_s": 0.0, "episodes": episodes}})
-        if node.executable == "ssf_fusion_node":  # in real time a scan's loop answers within the latency budget (the demo
-            # graph waits 2 s, since in lockstep time stands still) after one iteration (-p to iterate again)
+        if node.executable == "ssf_fusion_node" and mode == "realtime":  # in real time a scan's loop answers within the
+            # latency budget (the demo graph waits 2 s, since in lockstep time stands still) after one iteration
             node = node.model_copy(update={"parameters": {**node.parameters, "timeout_s": REALTIME_LOOP_TIMEOUT_S,
                                                           "fusion.max_iterations": REALTIME_LOOP_ITERATIONS}})
         if node.name in parameters:

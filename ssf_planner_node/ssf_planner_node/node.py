@@ -72,7 +72,7 @@ class PlannerNode(Node):
         self.log = ConditionLog(self.get_logger(), diagnostics.repeat_s, diagnostics.lasting_s)
         self.waiting = False  # the newest odometry came while the obstacles were stale: it plans when they come
         self.create_timer(self.config.control_period, self.watchdog)  # behaviour: the node's (simulated) clock ...
-        self.create_timer(self.config.control_period, lambda: self.watchdog(steady=True),  # ... and liveness
+        self.create_timer(self.config.control_period / 2, lambda: self.watchdog(steady=True),  # ... and liveness
                           clock=self.get_steady_clock())
         self.create_timer(report_period, self._report)
         source = "parameter route_waypoints" if self.planner.route is not None else route_topic
@@ -94,6 +94,11 @@ class PlannerNode(Node):
     def _clocks(self) -> tuple[int, int]:
         """Now on the node's clock and on the steady clock (ns)."""
         return self.get_clock().now_ns(), self.get_steady_clock().now_ns()
+
+    def _stale(self, clock_ns: int, steady_ns: int) -> list[Staleness]:
+        """The stale inputs now (by the steady clock too while the node's clock runs with it)."""
+        running = self.get_clock().running(steady_ns, int(1.5 * self.config.control_period * 1e9))
+        return self.inputs.stale(clock_ns, steady_ns, running)
 
     def _route_from_parameter(self, values: list[float]) -> Route:
         if len(values) % 2 or len(values) < 4:
@@ -174,7 +179,7 @@ class PlannerNode(Node):
         waits for them (a scan's obstacles may come just after its odometry: braking then would release a lockstep
         simulator's step for nothing); the watchdog brakes if they stay stale."""
         clock_ns, steady_ns = self._clocks()
-        self.waiting = bool(self.inputs.stale(clock_ns, steady_ns))
+        self.waiting = bool(self._stale(clock_ns, steady_ns))
         if self.waiting:
             return
         state = self._now(state_of(odometry))
@@ -329,13 +334,15 @@ class PlannerNode(Node):
         return pose
 
     def watchdog(self, steady: bool = False) -> None:
-        """Every control period of the node's clock: while an input is stale (by that clock, or silent by the steady
-        one), the next braking command; and every control period of the steady clock, whatever the node's clock does
-        (standing still in lockstep or with a dead simulator, gone back), while an input is silent."""
+        """Every control period of the node's clock and every half of one of the steady clock (whatever the node's
+        clock does: standing still in lockstep or with a dead simulator, gone back): while an input is stale, the next
+        braking command. The steady watchdog judges by the node's clock only while it runs with the steady one (in
+        lockstep a brake would release a step and age the inputs itself); else it brakes for silent inputs alone."""
         if self.odometry is None:  # nothing commanded yet: the car stands, or its own timeout stops it
             return
         clock_ns, steady_ns = self._clocks()
-        stale = self.inputs.silent(steady_ns) if steady else self.inputs.stale(clock_ns, steady_ns)
+        running = self.get_clock().running(steady_ns, int(1.5 * self.config.control_period * 1e9))
+        stale = self._stale(clock_ns, steady_ns) if not steady or running else self.inputs.silent(steady_ns)
         if stale and self.inputs.brake_due(clock_ns, steady_ns):
             self._publish_step(self._blind_brake(self.odometry, stale), clock_ns)
 

@@ -29,7 +29,7 @@ def test_an_input_goes_stale_two_sensor_periods_after_its_last_fresh_message():
     assert inputs.take(Source.ODOMETRY, 5_000 * MS, clock_ns=5_000 * MS, steady_ns=0)
     assert inputs.take(Source.OBSTACLES, 4_900 * MS, clock_ns=5_000 * MS, steady_ns=0)
     assert inputs.stale(5_200 * MS, 200 * MS) == []  # exactly two periods old: still fresh
-    [late] = inputs.stale(5_300 * MS, 300 * MS, (Source.ODOMETRY,))
+    [late] = inputs.stale(5_300 * MS, 300 * MS, sources=(Source.ODOMETRY,))
     assert late.reason == "stale_odometry" and "0.30 s old" in late.detail
     # a repeat of the same picture (a frozen stage) or a late one is no fresh input
     assert not inputs.take(Source.OBSTACLES, 4_900 * MS, clock_ns=5_300 * MS, steady_ns=300 * MS)
@@ -40,18 +40,18 @@ def test_an_input_goes_stale_two_sensor_periods_after_its_last_fresh_message():
 def test_an_input_silent_on_the_steady_clock_is_stale_while_the_nodes_clock_stands_still():
     inputs = watch(silent_after_s=2.0)
     inputs.take(Source.ODOMETRY, 5_000 * MS, clock_ns=5_000 * MS, steady_ns=1_000 * MS)
-    assert inputs.stale(5_000 * MS, 2_900 * MS, (Source.ODOMETRY,)) == []  # lockstep: the graph is thinking
-    [silent] = inputs.stale(5_000 * MS, 3_100 * MS, (Source.ODOMETRY,))  # ... or dead: 2.1 s of steady time
+    assert inputs.stale(5_000 * MS, 2_900 * MS, sources=(Source.ODOMETRY,)) == []  # lockstep: the graph is thinking
+    [silent] = inputs.stale(5_000 * MS, 3_100 * MS, sources=(Source.ODOMETRY,))  # ... or dead: 2.1 s of steady time
     assert "2.1 s of steady time" in silent.detail
 
 
 def test_a_clock_gone_back_makes_the_last_drives_inputs_stale_and_a_restarted_stream_is_fresh():
     inputs = watch()
     inputs.take(Source.ODOMETRY, 30_000 * MS, clock_ns=30_000 * MS, steady_ns=0)
-    [old] = inputs.stale(100 * MS, 100 * MS, (Source.ODOMETRY,))  # the simulator's next episode: clock at 0.1 s
+    [old] = inputs.stale(100 * MS, 100 * MS, sources=(Source.ODOMETRY,))  # the simulator's next episode: clock at 0.1 s
     assert "before the clock went back" in old.detail
     assert inputs.take(Source.ODOMETRY, 100 * MS, clock_ns=100 * MS, steady_ns=100 * MS)  # stamps back by 29.9 s
-    assert inputs.stale(200 * MS, 200 * MS, (Source.ODOMETRY,)) == []
+    assert inputs.stale(200 * MS, 200 * MS, sources=(Source.ODOMETRY,)) == []
 
 
 def test_one_braking_command_per_control_period_paced_by_the_steady_clock_too():
@@ -188,3 +188,15 @@ def test_a_restarted_odometry_frame_is_placed_where_the_car_is_expected():
     later = bridge @ make_pose(5.0, 0.0, 0.3, 0.0)  # 5 m on in the new frame: 5 m on along the car's heading
     assert later[:2, 3] == pytest.approx([120.0 + 5 * np.cos(0.8), -30.0 + 5 * np.sin(0.8)])
     assert frame_bridge(expected, restarted, 0.0) is None  # switched off
+
+
+def test_while_the_clock_runs_with_the_steady_one_an_input_is_stale_by_the_steady_clock_too():
+    """A simulated clock in real time ticks once per scan: odometry that came 0.09 s after the 5.0 s tick reads 0.2 s
+    old at the 5.2 s tick though it is 0.11 s old, and at the 5.3 s tick 0.3 s though it is 0.21 s: braking on the
+    ticks alone would come up to a tick late. In lockstep (the clock not running) the steady clock does not count."""
+    inputs = watch()
+    inputs.take(Source.ODOMETRY, 5_000 * MS, clock_ns=5_000 * MS, steady_ns=1_090 * MS)
+    assert inputs.stale(5_200 * MS, 1_290 * MS, running=True, sources=(Source.ODOMETRY,)) == []  # 0.20 s: fresh
+    [stale] = inputs.stale(5_200 * MS, 1_300 * MS, running=True, sources=(Source.ODOMETRY,))  # 0.21 s
+    assert "0.21 s old" in stale.detail
+    assert inputs.stale(5_200 * MS, 1_300 * MS, running=False, sources=(Source.ODOMETRY,)) == []

@@ -66,6 +66,7 @@ class Clock:
     def __init__(self) -> None:
         self.use_sim_time = False
         self._sim_ns = 0
+        self.set_at_steady_ns: int | None = None  # when /clock last came (steady clock): whether sim time is running
 
     def now_ns(self) -> int:
         """Current time in nanoseconds (0 in sim time until the first /clock)."""
@@ -78,6 +79,14 @@ class Clock:
     def set_sim_time(self, nanoseconds: int) -> None:
         """Advance sim time (from /clock)."""
         self._sim_ns = nanoseconds
+        self.set_at_steady_ns = time.monotonic_ns()
+
+    def running(self, steady_ns: int, within_ns: int) -> bool:
+        """Whether the clock moves with the steady one: wall time, or sim time whose /clock came within `within_ns`
+        (a simulator in real time; not one in lockstep waiting for the graph, nor a dead one)."""
+        if not self.use_sim_time:
+            return True
+        return self.set_at_steady_ns is not None and steady_ns - self.set_at_steady_ns <= within_ns
 
 
 class SteadyClock:

@@ -70,20 +70,26 @@ class InputWatch:
         self.heard[source] = Heard(int(clock_ns), int(steady_ns), int(stamp_ns))
         return True
 
-    def stale(self, clock_ns: int, steady_ns: int, sources: tuple[Source, ...] = tuple(Source)) -> list[Staleness]:
+    def stale(self, clock_ns: int, steady_ns: int, running: bool = False,
+              sources: tuple[Source, ...] = tuple(Source)) -> list[Staleness]:
         """The stale inputs among `sources`: none yet, older than stale_after_s by the node's clock (or from before the
-        clock went back), or silent for silent_after_s by the steady clock."""
+        clock went back), or silent for silent_after_s by the steady clock. While the node's clock runs with the
+        steady one (`running`: wall time, a simulator in real time), an input is also stale once older than
+        stale_after_s by the steady clock: a simulated clock ticks once per scan, and an age read off it is up to a
+        tick late."""
         found = []
         limit = self.config.stale_after_s
         for source in sources:
             heard = self.heard.get(source)
             age = None if heard is None else (clock_ns - heard.clock_ns) * 1e-9
+            steady_age = None if heard is None else (steady_ns - heard.steady_ns) * 1e-9
             if heard is None:
                 found.append(Staleness(source, f"no {source.value} yet"))
             elif age < 0:
                 found.append(Staleness(source, f"{source.value} from before the clock went back"))
-            elif age > limit + 1e-9:
-                found.append(Staleness(source, f"{source.value} {age:.2f} s old (more than {limit:g} s)"))
+            elif max(age, steady_age if running else 0.0) > limit + 1e-9:
+                found.append(Staleness(source, f"{source.value} {max(age, steady_age if running else 0.0):.2f} s "
+                                               f"old (more than {limit:g} s)"))
             else:
                 found += self.silent(steady_ns, (source,))
         return found
