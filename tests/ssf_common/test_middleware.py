@@ -441,3 +441,23 @@ def test_a_subscription_remembers_when_it_last_heard_a_good_message(nodes):
     subscription.deliver(messages.serialize(String(data="bad"), "std_msgs/msg/String"))
     assert subscription.heard == heard and subscription.dropped == 1  # a dropped message is not heard
     assert subscription in node.subscriptions
+
+
+def test_simulated_time_runs_with_the_steady_clock_in_real_time_not_in_lockstep(monkeypatch):
+    """A planner judges input age by the steady clock too only while the simulator runs in real time: in lockstep
+    simulated time crawls while the graph thinks (a step per half second), and it stands still when the simulator died."""
+    from ssf_common.middleware.node import Clock
+
+    steady = [0]
+    monkeypatch.setattr("ssf_common.middleware.node.time.monotonic_ns", lambda: steady[0])
+    realtime, lockstep = Clock(), Clock()
+    realtime.use_sim_time = lockstep.use_sim_time = True
+    for tick in range(12):
+        steady[0] = tick * 100_000_000
+        realtime.set_sim_time(tick * 100_000_000)  # 0.1 s of simulated time per 0.1 s
+        if tick % 5 == 0:
+            lockstep.set_sim_time(tick // 5 * 100_000_000)  # 0.1 s per 0.5 s
+    assert realtime.running(steady[0] + 50_000_000, 150_000_000)
+    assert not lockstep.running(steady[0] + 50_000_000, 150_000_000)
+    assert not realtime.running(steady[0] + 300_000_000, 150_000_000)  # no /clock for 0.3 s: stopped
+    assert Clock().running(0, 0)  # wall time always runs

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import os
 import queue
 import sys
@@ -63,10 +64,13 @@ class Clock:
 
     steady = False  # a clock that can stand still or jump back (simulated time) or be set (wall time)
 
+    RATE_WINDOW_NS = 1_000_000_000  # sim time runs with the steady clock when it kept pace over this long ...
+    RATE = 0.7  # ... at least at this rate (a loaded real-time simulator lags; one in lockstep crawls or stands)
+
     def __init__(self) -> None:
         self.use_sim_time = False
         self._sim_ns = 0
-        self.set_at_steady_ns: int | None = None  # when /clock last came (steady clock): whether sim time is running
+        self._ticks: collections.deque[tuple[int, int]] = collections.deque()  # (steady ns, sim ns) of recent /clock
 
     def now_ns(self) -> int:
         """Current time in nanoseconds (0 in sim time until the first /clock)."""
@@ -79,14 +83,22 @@ class Clock:
     def set_sim_time(self, nanoseconds: int) -> None:
         """Advance sim time (from /clock)."""
         self._sim_ns = nanoseconds
-        self.set_at_steady_ns = time.monotonic_ns()
+        now = time.monotonic_ns()
+        self._ticks.append((now, int(nanoseconds)))
+        while self._ticks and now - self._ticks[0][0] > self.RATE_WINDOW_NS:
+            self._ticks.popleft()
 
     def running(self, steady_ns: int, within_ns: int) -> bool:
         """Whether the clock moves with the steady one: wall time, or sim time whose /clock came within `within_ns`
-        (a simulator in real time; not one in lockstep waiting for the graph, nor a dead one)."""
+        and kept pace with the steady clock over the last RATE_WINDOW_NS (a simulator in real time; not one in
+        lockstep, whose time waits for the graph, nor a dead one)."""
         if not self.use_sim_time:
             return True
-        return self.set_at_steady_ns is not None and steady_ns - self.set_at_steady_ns <= within_ns
+        if not self._ticks or steady_ns - self._ticks[-1][0] > within_ns:
+            return False
+        (first_steady, first_sim), (last_steady, last_sim) = self._ticks[0], self._ticks[-1]
+        span = last_steady - first_steady
+        return span >= self.RATE_WINDOW_NS // 2 and last_sim - first_sim >= self.RATE * span
 
 
 class SteadyClock:
