@@ -128,3 +128,13 @@ def test_an_array_fault_counts_from_the_last_array_passed_before_it_not_after_it
                       {"fault": 95.06, "end": 130.0, "recovered": 131.0}, 1, injector)
     assert record.last_fresh_s == 5.05 and record.onset_s == pytest.approx(0.3) and record.stopped
     assert record.brake_reasons == ["stale_obstacles"] and record.passed, record.note
+
+
+def test_a_planner_that_dies_while_the_car_stands_leaves_it_standing():
+    case = FaultCase("kill", "planner", "realtime", 1)
+    probe = ScriptedProbe()
+    probe.drives = [[TruthSample(k * S // 10, 0.0, 0.0, 0.0) for k in range(80)]]
+    record = evaluate(case, FaultRecord(case.name, "kill", "planner", "realtime", 1), probe,
+                      {"fault": 95.06, "end": 130.0, "recovered": 131.0}, 1, None)
+    assert record.onset_by == "standing" and record.onset_s is None and record.stopped
+    assert record.stop_distance_m == 0.0 and record.passed, record.note
