@@ -357,9 +357,10 @@ def run_case(case: FaultCase, scenario: str, parameters: dict[str, dict[str, Any
 
 
 def _at_speed(probe: FaultProbe, episode: int, timing: Timing) -> bool:
-    """Whether the fault is due: in its drive, fault_at_s in and at speed, or fault_latest_s in."""
+    """Whether the fault is due: in its drive, with the planner solving (a tick in the last second), fault_at_s in and
+    at speed, or fault_latest_s in."""
     drives, truth = probe.now()
-    if drives != episode or truth is None:
+    if drives != episode or truth is None or not _solved_since(probe, time.monotonic() - 1.0):
         return False
     seconds = truth.stamp_ns * 1e-9
     return (seconds >= timing.fault_at_s and truth.speed >= timing.fault_speed_mps) or seconds >= timing.fault_latest_s

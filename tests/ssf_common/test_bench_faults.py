@@ -104,7 +104,7 @@ def test_late_braking_a_long_stop_a_collision_or_no_recovery_fail_the_case():
 def test_one_case_of_the_campaign_in_the_running_graph():
     """The smoke test: a few seconds of real-time driving, the flow node killed, the car braking within 0.3 s of
     simulated time of its last fresh input, standing, and the graph planning again once the node is back."""
-    timing = Timing(fault_at_s=2.0, fault_speed_mps=0.0, stood_s=0.5, hold_limit_s=6.0, after_s=1.0)
+    timing = Timing(fault_at_s=3.0, fault_speed_mps=0.0, stood_s=0.5, hold_limit_s=6.0, after_s=1.0)
     lines: list[str] = []
     record = run_case(FaultCase("kill", "flow", "realtime", 1), "urban_100", say=lines.append, timing=timing)
     assert any(line.startswith("  fault at") for line in lines), lines
@@ -112,7 +112,6 @@ def test_one_case_of_the_campaign_in_the_running_graph():
     assert record.onset_by == "planner" and record.onset_s is not None and record.onset_s <= 0.3 + 1e-6, record
     assert record.stopped and record.stop_distance_m <= record.stop_bound_m, record
     assert any(reason.startswith("stale_") for reason in record.brake_reasons), record
-    assert record.diagnostics.get("ssf_seg_node") in ("WARN", "ERROR"), record  # the stage below the dead one said so
 
 
 def test_an_array_fault_counts_from_the_last_array_passed_before_it_not_after_it():
