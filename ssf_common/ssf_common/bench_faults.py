@@ -546,7 +546,7 @@ def bench_command(args: argparse.Namespace) -> int:
     """ssf bench faults."""
     from ssf_common.demo import check_scenario
     from ssf_common.jsonio import write_json
-    from ssf_common.paths import check_writable
+    from ssf_common.paths import check_writable, check_writable_dir
 
     cases = campaign()
     if args.list:
@@ -557,7 +557,7 @@ def bench_command(args: argparse.Namespace) -> int:
     if args.json:
         check_writable(args.json, "result file")
     if args.logs:
-        Path(args.logs).mkdir(parents=True, exist_ok=True)
+        check_writable_dir(args.logs, "log folder")
     parameters = node_parameters(args.param)
     bench_graph_spec(args.scenario, 1, parameters)  # unknown node names fail here, before any process
     records = []

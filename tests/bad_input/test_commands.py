@@ -262,6 +262,14 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "graph", "-p", d(st.sampled_from(["fusion.max_iterations:=1", "nobody:x:=1",
                                                                   "ssf_flow_node:=3", "ssf_flow_node:x:="]))],
     ),
+    "bench faults": one_of(  # every case must fail before a process starts
+        lambda d, f: ["bench", "faults", "--cases", d(st.sampled_from(["kill-radar-*", "nothing", "kill-flow-*,x"]))],
+        lambda d, f: ["bench", "faults", "--scenario", hostile_yaml_file(d, f)],
+        lambda d, f: ["bench", "faults", "--json", bad_output(d, f)],
+        lambda d, f: ["bench", "faults", "--logs", str(d(st.sampled_from(unwritable_paths(f)[:2])))],
+        lambda d, f: ["bench", "faults", "-p", d(st.sampled_from(["fusion.max_iterations:=1", "nobody:x:=1",
+                                                                   "ssf_flow_node:=3", "ssf_flow_node:x:="]))],
+    ),
 }
 
 
