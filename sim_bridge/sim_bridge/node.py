@@ -1,5 +1,10 @@
 """sim_bridge: the simulator as a node — scans, /clock, the odometer's /vehicle/twist and ground truth out,
-/cmd_vel in, the episode scored."""
+/cmd_vel in, the episode scored.
+
+The vehicle stops on its own, as a drive-by-wire should: the newest /cmd_vel older than `cmd_vel_timeout` (simulated
+time) gives zero velocity, as ros2_control's diff_drive_controller does. In lockstep a step waits `command_timeout_s`
+(wall) for its command; once that wait ran out, the steps go on at the real-time pace, without waiting, until a
+command comes again."""
 
 from __future__ import annotations
 
@@ -15,7 +20,7 @@ from sim_bridge import ros_messages
 from sim_bridge.ego import VelocityCommand
 from sim_bridge.scenario import Scenario, load_scenario, overrides_from_pairs
 from sim_bridge.simulator import Frame, Simulator, episode_summary
-from ssf_common.diagnostics import StageStats, advertise
+from ssf_common.diagnostics import ConditionLog, Level, StageStats, advertise
 from ssf_common import topics
 from ssf_common.checks import SEED_MAX
 from ssf_common.config import Section
@@ -33,7 +38,7 @@ SCENARIO_SECTIONS = frozenset(name for name, field in Scenario.model_fields.item
 class Mode(str, Enum):
     """How simulated time relates to commands and the wall clock."""
 
-    LOCKSTEP = "lockstep"  # each step waits for its /cmd_vel (or the timeout); deterministic
+    LOCKSTEP = "lockstep"  # each step waits for its /cmd_vel (or the wait's timeout); deterministic
     REALTIME = "realtime"  # steps every dt of wall time with the latest /cmd_vel
 
 
@@ -53,9 +58,16 @@ class SimNodeConfig(Section):
     seed: int = Field(-1, ge=-1, le=SEED_MAX, description="-1: the scenario's own seed")
     mode: Mode = Mode.LOCKSTEP
     driver: Driver = Driver.FOLLOW
-    command_timeout_s: float = Field(0.5, gt=0, description="lockstep: apply the last command after this wait")
+    command_timeout_s: float = Field(0.5, gt=0, description="lockstep: a step waits this long (wall) for its command; "
+                                     "once commands came and stopped, steps then go on at the real-time pace until one "
+                                     "comes again")
+    cmd_vel_timeout: float = Field(0.5, ge=0, description="the newest /cmd_vel this old (s of simulated time) gives "
+                                   "zero velocity, as ros2_control's diff_drive_controller does; 0: the last command "
+                                   "holds however old")
     rate: float = Field(10.0, ge=0, description="steps per wall second with the follower in lockstep; 0 = flat out")
     duration_s: float = Field(0.0, ge=0, description="stop after this much sim time; 0 = the scenario's time limit")
+    first_episode_s: float = Field(0.0, ge=0, description="the first episode ends after this much sim time (0: as the "
+                                   "others): with episodes, a drive whose clock soon starts again")
     summary: str = Field("", description="write the episode summary JSON here when it ends")
     render: str = Field("", description="draw the episode top-down to this PNG when it ends")
     markers: bool = True
@@ -81,7 +93,9 @@ class SimBridgeNode(Node):
         self.outcomes: collections.Counter[str] = collections.Counter()
         self._new_episode(None if self.config.seed < 0 else self.config.seed)
         self.command = VelocityCommand()
+        self.command_ns: int | None = None  # when the newest command came (simulated time)
         self.fresh_command = False
+        self.commands_missing = False  # lockstep: a wait for a command ran out, and none has come since
         self.published_at = 0.0
         self.step_ms: list[float] = []
         self.stats = StageStats(self.get_name())
@@ -105,7 +119,10 @@ class SimBridgeNode(Node):
         self.created_at = time.monotonic()
         self._publish_route()
         self.create_timer(self._tick_period(), self.tick)
-        advertise(self, self.stats)
+        # in real time /cmd_vel must keep coming; in lockstep each step waits for it (a wait that ran out is said)
+        watched = (topics.CMD_VEL,) if self.config.driver is Driver.NONE and self.config.mode is Mode.REALTIME else ()
+        diagnostics = advertise(self, self.stats, inputs=watched)
+        self.log = ConditionLog(self.get_logger(), diagnostics.repeat_s, diagnostics.lasting_s)
         self.get_logger().info(
             f"scenario '{self.config.scenario}' seed {self.sim.seed}: {self.scenario.agents.count} agents, "
             f"route {self.sim.world.route_length:.0f} m, {self.config.mode.value}, driver {self.config.driver.value}"
@@ -136,7 +153,12 @@ class SimBridgeNode(Node):
     def on_cmd_vel(self, msg: Any) -> None:
         """Take a velocity command; in lockstep it releases the step that waits for it."""
         self.command = VelocityCommand(float(msg.linear.x), float(msg.angular.z))
+        self.command_ns = self.sim.frame.stamp_ns
         self.fresh_command = True
+        if self.commands_missing:
+            self.commands_missing = False
+            self.log.update("commands missing", False, over="/cmd_vel came again: each step waits for its command")
+            self.stats.report("commands missing", Level.OK, "")
         if self.config.mode is Mode.LOCKSTEP and self.follower is None:
             self.tick()
 
@@ -147,14 +169,10 @@ class SimBridgeNode(Node):
         if not self.started:
             self._start_when_readers_joined()
             return
-        if self.config.mode is Mode.LOCKSTEP and self.follower is None:
-            waited = time.monotonic() - self.published_at
-            if not self.fresh_command and waited < self.config.command_timeout_s:
-                return
-            if not self.fresh_command:
-                self.stats.count("command_timeouts")
+        if self.config.mode is Mode.LOCKSTEP and self.follower is None and not self._lockstep_due():
+            return
         frame = self.sim.frame
-        command = self.command
+        command = self._command_now(frame.stamp_ns)
         if self.follower is not None:
             command = self.follower.command(frame.base_pose, frame.ego.speed, frame.agents, frame.status.outcome)
         self.fresh_command = False
@@ -164,8 +182,41 @@ class SimBridgeNode(Node):
         self.step_ms.append((time.perf_counter() - start) * 1e3)
         self.stats.record(self.step_ms[-1], "steps")
         self._publish(frame, previous)
-        if self.sim.done or frame.status.time >= self.time_limit - 1e-9:
+        limit = self.config.first_episode_s if self.episode == 0 and self.config.first_episode_s > 0 else self.time_limit
+        if self.sim.done or frame.status.time >= limit - 1e-9:
             self._finish(frame)
+
+    def _lockstep_due(self) -> bool:
+        """Lockstep: whether this step may go: its command came, or the wait for it ran out (then, when commands had
+        come in this drive, the next steps go on at the real-time pace until one comes again, instead of each waiting
+        the whole timeout; before the first command of a drive each step waits, as the graph starts up)."""
+        if self.fresh_command:
+            return True
+        waited = time.monotonic() - self.published_at
+        if self.commands_missing:
+            return waited >= self.sim.dt
+        if waited < self.config.command_timeout_s:
+            return False
+        self.stats.count("command_timeouts")
+        if self.command_ns is not None:  # commands came in this drive and stopped (before the first, each step waits)
+            self.commands_missing = True
+            said = f"no /cmd_vel for {waited:.1f} s: the simulation goes on at the real-time pace until one comes"
+            self.log.update("commands missing", True, said)
+            self.stats.report("commands missing", Level.WARN, said)
+        return True
+
+    def _command_now(self, stamp_ns: int) -> VelocityCommand:
+        """The command the vehicle obeys at this step: none yet in this drive, or the newest once cmd_vel_timeout old,
+        is zero velocity; else the newest."""
+        if self.command_ns is None:
+            return VelocityCommand()
+        timeout = self.config.cmd_vel_timeout
+        expired = timeout > 0 and (stamp_ns - self.command_ns) * 1e-9 >= timeout - 1e-9
+        self.stats.count("cmd_vel_timeouts", int(expired))
+        said = f"the newest /cmd_vel is {timeout:g} s old: zero velocity (the vehicle stops on its own)"
+        self.log.update("cmd_vel timeout", expired, said, over="/cmd_vel fresh again")
+        self.stats.report("cmd_vel timeout", Level.WARN if expired else Level.OK, said)
+        return VelocityCommand() if expired else self.command
 
     def _start_when_readers_joined(self) -> None:
         readers = self.pub_points.get_subscription_count()
@@ -218,6 +269,7 @@ class SimBridgeNode(Node):
             self.get_logger().info(f"episode {self.episode} over ({describe_outcome(frame)}); the next starts with "
                                    f"seed {self.sim.seed + 1}")
             self._new_episode(self.sim.seed + 1)
+            self.command_ns = None  # a command of the last drive does not drive this one
             self.step_ms.clear()  # the summary covers the drive it describes
             self._publish_route()
             self._publish(self.sim.frame)

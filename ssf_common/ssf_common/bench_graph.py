@@ -74,7 +74,7 @@ class GraphBench:
 class Probe:
     """Listens to the graph: wall time of each /clock stamp, scans, odometry, commands, diagnostics."""
 
-    def __init__(self) -> None:
+    def __init__(self, spin: bool = True) -> None:
         from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node
 
         self.node = Node("ssf_bench_probe")
@@ -101,7 +101,8 @@ class Probe:
         self.node.create_subscription("diagnostic_msgs/msg/DiagnosticArray", topics.DIAGNOSTICS, self.on_diagnostics,
                                       QOS_DEFAULT)
         self.node.create_subscription("ssf_interfaces/msg/EpisodeResult", topics.EPISODE, self.on_episode, QOS_DEFAULT)
-        self.node.spin_in_thread()
+        if spin:  # a subclass that listens to more spins once its subscriptions are made
+            self.node.spin_in_thread()
 
     def on_episode(self, msg: Any) -> None:
         names = {msg.OUTCOME_RUNNING: "running", msg.OUTCOME_SUCCESS: "success", msg.OUTCOME_COLLISION: "collision",
@@ -175,18 +176,20 @@ class Probe:
         self.node.destroy_node()
 
 
-def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dict[str, Any]] | None = None) -> GraphSpec:
-    """The demo graph without its recorder, the simulator in real time driven by the planner (`episodes` drives back to
-    back, 0: until stopped), with `parameters` set per node name."""
-    graph = in_real_time(load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml"))))
+def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dict[str, Any]] | None = None,
+                     mode: str = "realtime") -> GraphSpec:
+    """The demo graph without its recorder, the simulator in real time (or lockstep, as the demo) driven by the planner
+    (`episodes` drives back to back, 0: until stopped), with `parameters` set per node name."""
+    graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    graph = in_real_time(graph) if mode == "realtime" else graph
     parameters = parameters or {}
     nodes = []
     for node in graph.nodes:
         if node.executable == "ssf":
             continue
         if node.executable == "sim_bridge":
-            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "driver": "none",
-                                                          "duration_s": 0.0, "episodes": episodes}})
+            node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": mode,
+                                                          "driver": "none", "duration_s": 0.0, "episodes": episodes}})
         if node.name in parameters:
             node = node.model_copy(update={"parameters": {**node.parameters, **parameters[node.name]}})
         nodes.append(node)

@@ -1,4 +1,4 @@
-"""`ssf` commands of ssf_common: launch, demo, record, bag, bench transport."""
+"""`ssf` commands of ssf_common: launch, demo, record, bag, bench transport, graph, faults."""
 
 from __future__ import annotations
 
@@ -118,11 +118,12 @@ def _register_bench_commands(groups: CommandGroups) -> None:
     transport.add_argument("--duration", type=float, default=20.0, help="seconds per cloud size (default 20)")
     transport.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
     transport.set_defaults(func=_bench_transport)
-    from ssf_common import bench_graph
+    from ssf_common import bench_faults, bench_graph
     from ssf_common.viewer import bench as view_bench
 
     view_bench.add_parser(groups.bench)
     bench_graph.add_parser(groups.bench)
+    bench_faults.add_parser(groups.bench)
 
 
 def _bench_transport(args: argparse.Namespace) -> int:

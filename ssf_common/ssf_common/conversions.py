@@ -194,10 +194,111 @@ def obstacles_from_msg(msg: Any) -> Obstacles:
         point_counts=np.array([item.num_points for item in items]),
         confidences=np.array([item.confidence for item in items]),
     )
+    return _finite(obstacles)
+
+
+def _finite(obstacles: Obstacles) -> Obstacles:
     for name in ("centres", "sizes", "yaws", "velocities", "velocity_covariances"):
         if not np.isfinite(getattr(obstacles, name)).all():
             raise MessageError(f"obstacle array holds NaN/Inf {name.replace('_', ' ')}")
     return obstacles
+
+
+# ObstacleArray straight from and to its CDR bytes: an Obstacle is fixed-size, so the array is a numpy record array
+# (10 000 obstacles: well under a millisecond, against ~200 ms through message objects). In XCDR1 an element starting
+# 4 bytes past an 8-byte boundary is 200 bytes long and so is every one after it; the first may start on the boundary
+# (196 bytes, less padding before its pose).
+_OBSTACLE_FIELDS = (("id", "<u4"), ("kind", "u1"), ("position", "<f8", 3), ("orientation", "<f8", 4),
+                    ("size", "<f8", 3), ("velocity", "<f8", 3), ("velocity_covariance", "<f8", 9),
+                    ("yaw_rate", "<f4"), ("num_points", "<u4"), ("confidence", "<f4"))
+
+
+def _obstacle_dtype(phase: int) -> np.dtype:
+    """The record of one Obstacle starting `phase` (0 or 4) bytes past an 8-byte boundary of the CDR body."""
+    names, formats, offsets, offset = [], [], [], 0
+    for name, kind, *shape in _OBSTACLE_FIELDS:
+        base = np.dtype(kind)
+        offset += -(phase + offset) % base.itemsize  # XCDR1: each primitive aligned to its size
+        names.append(name)
+        formats.append((kind, tuple(shape)) if shape else kind)
+        offsets.append(offset)
+        offset += base.itemsize * (shape[0] if shape else 1)
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": offset})
+
+
+_OBSTACLE_RECORDS = {phase: _obstacle_dtype(phase) for phase in (0, 4)}
+_CDR_LE = b"\x00\x01"
+
+
+def _obstacle_records(body: memoryview, start: int, count: int) -> list[np.ndarray]:
+    """The obstacles of a CDR body as record arrays (the first alone when it starts on an 8-byte boundary)."""
+    parts, end = [], start
+    if count and start % 8 == 0:
+        first = _OBSTACLE_RECORDS[0]
+        parts.append(np.frombuffer(body, first, 1, start))
+        end, count = start + first.itemsize, count - 1
+    record = _OBSTACLE_RECORDS[4]
+    if end + count * record.itemsize > len(body):
+        raise MessageError(f"obstacle array: {count} obstacles do not fit in {len(body)} bytes")
+    parts.append(np.frombuffer(body, record, count, end))
+    return parts
+
+
+def obstacles_from_cdr(cdr: bytes | memoryview) -> Obstacles:
+    """The Obstacles of an ObstacleArray's CDR bytes, decoded as numpy records (any byte order other than little
+    endian goes through the message objects); NaN/Inf or a truncated array are a MessageError."""
+    data = memoryview(cdr).cast("B")
+    if len(data) < 20 or bytes(data[:2]) != _CDR_LE:
+        return obstacles_from_msg(messages.deserialize(cdr, "ssf_interfaces/msg/ObstacleArray"))
+    body = data[4:]
+    sec, (nanosec, length) = int(np.frombuffer(body, "<i4", 1, 0)[0]), (int(v) for v in np.frombuffer(body, "<u4", 2, 4))
+    if length < 1 or 12 + length + 4 > len(body):
+        raise MessageError(f"obstacle array: a frame id of {length} bytes does not fit in {len(body)} bytes")
+    frame_id = bytes(body[12:12 + length - 1]).decode("utf-8", errors="replace")
+    start = 12 + length + (-(12 + length) % 4)
+    count = int(np.frombuffer(body, "<u4", 1, start)[0])
+    parts = _obstacle_records(body, start + 4, count)
+    column = lambda name: np.concatenate([part[name] for part in parts]) if parts else np.zeros(0)  # noqa: E731
+    x, y, z, w = (column("orientation")[:, i] for i in range(4)) if count else (np.zeros(0),) * 4
+    norm = x * x + y * y + z * z + w * w
+    with np.errstate(invalid="ignore", divide="ignore"):  # a zero quaternion gives NaN: refused below
+        yaws = np.arctan2(2.0 * (x * y + z * w) / norm, 1.0 - 2.0 * (y * y + z * z) / norm)
+    obstacles = Obstacles(
+        sec * 1_000_000_000 + nanosec, frame_id, ids=column("id").astype(np.int64),
+        kinds=column("kind").astype(np.uint8), centres=column("position").reshape(-1, 3),
+        sizes=column("size").reshape(-1, 3), yaws=yaws, velocities=column("velocity").reshape(-1, 3),
+        velocity_covariances=column("velocity_covariance").reshape(-1, 3, 3),
+        yaw_rates=column("yaw_rate").astype(np.float64), point_counts=column("num_points").astype(np.int64),
+        confidences=column("confidence").astype(np.float64))
+    return _finite(obstacles)
+
+
+def obstacles_to_cdr(obstacles: Obstacles) -> bytes:
+    """The CDR bytes (little endian) of obstacles_to_msg(obstacles), written as numpy records."""
+    frame = obstacles.frame_id.encode() + b"\x00"
+    sec, nanosec = divmod(int(obstacles.stamp_ns), 1_000_000_000)
+    head = np.array([sec], "<i4").tobytes() + np.array([nanosec, len(frame)], "<u4").tobytes() + frame
+    head += b"\x00" * (-len(head) % 4) + np.array([len(obstacles)], "<u4").tobytes()
+    body = bytearray(head)
+    count = len(obstacles)
+    phases = [0, 4] if count and len(head) % 8 == 0 else [4]
+    sizes = [_OBSTACLE_RECORDS[phase].itemsize for phase in phases]
+    total = len(head) + (sizes[0] + (count - 1) * _OBSTACLE_RECORDS[4].itemsize if count else 0)
+    body.extend(b"\x00" * (total - len(head)))
+    half = obstacles.yaws / 2.0
+    values = {"id": obstacles.ids, "kind": obstacles.kinds, "position": obstacles.centres,
+              "orientation": np.c_[np.zeros((count, 2)), np.sin(half), np.cos(half)], "size": obstacles.sizes,
+              "velocity": obstacles.velocities, "velocity_covariance": obstacles.velocity_covariances.reshape(-1, 9),
+              "yaw_rate": obstacles.yaw_rates, "num_points": obstacles.point_counts, "confidence": obstacles.confidences}
+    offset, first = len(head), 0
+    for phase in phases:
+        record = _OBSTACLE_RECORDS[phase]
+        rows = 1 if phase == 0 and len(phases) == 2 else count - first
+        view = np.frombuffer(body, record, rows, offset)
+        for name, column in values.items():
+            view[name] = column[first:first + rows]
+        offset, first = offset + rows * record.itemsize, first + rows
+    return _CDR_LE + b"\x00\x00" + bytes(body)
 
 
 def odometry_to_msg(odometry: OdometryEstimate) -> Any:

@@ -232,6 +232,16 @@ class Launcher:
         """Print one line under a label, whole among the nodes' lines."""
         self._say(label, text)
 
+    def kill(self, label: str) -> int:
+        """SIGKILL one node's process (a fault campaign's crash); the next poll() sees it and restarts it as any
+        crash. Returns its pid."""
+        managed = next((managed for managed in self.managed if managed.label == label), None)
+        if managed is None or managed.process is None or managed.process.poll() is not None:
+            raise ConfigError(f"no running node named '{label}' in the graph")
+        managed.process.kill()
+        managed.process.wait()
+        return managed.process.pid
+
     def poll(self) -> bool:
         """Restart crashed nodes; return False when the graph should stop."""
         for managed in self.managed:

@@ -65,7 +65,7 @@ class FlowNode(Node):
         self.create_timer(report_period, self._report)
         self._compute_ms: list[float] = []
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker), inputs=(topics.LIDAR_POINTS,))
         self.get_logger().info(f"estimator '{self.config.estimator}' on {device}")
 
     def on_scan(self, msg: Any) -> None:

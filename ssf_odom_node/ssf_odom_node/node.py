@@ -115,7 +115,8 @@ class OdomNode(Node):
         self.matcher: ExactMatcher[OdomInput, EgoMotion] = ExactMatcher(self._matched)
         self._compute_ms: list[float] = []
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker), inputs=(
+            (topics.SEMANTIC_FLOW,) if self.wiring.input == "semantic_flow" else (topics.FLOW, topics.MASK)))
         self._last_stamp: int | None = None
         self.period_ns: int | None = None  # the sensor's period, once learnt (see learn_period)
         self._shortest_gap: tuple[int, int] | None = None  # the shortest time between two scans yet, and how often

@@ -1,13 +1,15 @@
 """ssf_planner_node: /ssf/obstacles + /odom + a route (A -> B in the odometry frame) -> /cmd_vel and /ssf/plan.
 
 One plan per odometry message (the simulator's 10 Hz), with the newest obstacles moved into the odometry frame by
-the pose at their stamp; while odometry is late, one plan per control period from the newest pose carried forward.
-Stale obstacles cap the speed, stale odometry brakes, each said once."""
+the pose at their stamp, the odometry carried forward to now by the commands sent since. The fail safe (the core's
+`failsafe`): when odometry or obstacles are older than two sensor periods by the node's clock, or silent for
+`failsafe.silent_after_s` by the steady clock, every tick and a watchdog on both clocks brake, each command slower than
+the last, down to zero, said on /ssf/planner_state (reason stale_odometry, stale_obstacles, deadline, ...) and in one
+log line per new condition. Obstacle arrays are read straight from their bytes; bad or implausible ones are dropped."""
 
 from __future__ import annotations
 
 import math
-import time
 from collections import deque
 from dataclasses import replace
 from typing import Any
@@ -15,8 +17,8 @@ from typing import Any
 import numpy as np
 
 from ssf_common import messages, pose_msgs, topics
-from ssf_common.conversions import obstacles_from_msg, odometry_from_msg, plan_from_msg, plan_to_msg
-from ssf_common.diagnostics import StageStats, advertise
+from ssf_common.conversions import obstacles_from_cdr, odometry_from_msg, plan_from_msg, plan_to_msg
+from ssf_common.diagnostics import ConditionLog, Level, StageStats, advertise
 from ssf_common.errors import ConfigError, MessageError, SsfError
 from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
@@ -24,14 +26,14 @@ from ssf_common.geometry.se3 import invert, yaw_matrix
 from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_common.stamps import StampSequence
 from ssf_planner_node.core.config import PlannerConfig
-from ssf_planner_node.core.frames import PoseHistory, carried_forward, obstacles_in_route_frame, state_of
+from ssf_planner_node.core.failsafe import InputWatch, Source, Staleness, implausible_emptiness
+from ssf_planner_node.core.frames import (PoseHistory, carried_forward, frame_bridge, obstacles_in_route_frame,
+                                         state_of)
 from ssf_planner_node.core.models import Command
 from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus, VehicleState
 from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
-LATE_ODOMETRY_PERIODS = 2  # odometry older than this many control periods is late: the timer plans in between
-SAY_AGAIN_S = 10.0  # a problem that keeps coming back is said again at most this often (counted in between)
 CLOCK_AGREEMENT_S = 10.0  # stamps this close behind the clock are on it (a bag replayed without /clock is not)
 
 
@@ -48,20 +50,17 @@ class PlannerNode(Node):
         # the route's frame, as an odometry node's frame would start at the first scan
         self.anchor_odometry = self.declare_parameter("anchor_first_odometry", False).value
         self.anchor: np.ndarray | None = None
+        self.bridge: np.ndarray | None = None  # route frame <- the frame of a restarted odometry node
         self.planner = RdaPlanner(self.config)
         if waypoints:
             self.planner.set_route(self._route_from_parameter(waypoints))
         self.poses = PoseHistory()
         self.mounts: dict[str, np.ndarray] = {BASE_FRAME: np.eye(4)}
-        self.obstacles: Obstacles | None = None
+        self.obstacles: Obstacles | None = None  # the newest believed picture (in its own frame)
         self.odometry: OdometryEstimate | None = None  # the newest (in the route's frame)
-        self.last_odometry_s: float | None = None  # when it arrived (the node's clock: stamps may run on another)
-        self.last_tick_s: float | None = None
-        self.last_command = Command(0.0, 0.0)
+        self.odometry_position = np.zeros(2)  # ... where it puts the car in its own frame (before any anchor)
+        self.inputs = InputWatch(self.config.failsafe, self.config.control_period)
         self.sent: deque[tuple[int, Command]] = deque(maxlen=200)  # (clock stamp, command) for latency compensation
-        self.said: set[str] = set()  # the problems there are now
-        self._announced: set[str] = set()  # ... of which the onset was said (the others came back within SAY_AGAIN_S)
-        self._said_at: dict[str, float] = {}  # when each problem was last said (monotonic s)
         self.sequence = StampSequence()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
@@ -69,17 +68,37 @@ class PlannerNode(Node):
         self.marker_pub = self.create_publisher("visualization_msgs/msg/MarkerArray", topics.SSF_MARKERS, QOS_DEFAULT)
         self.state_pub = self.create_publisher("ssf_interfaces/msg/PlannerState", topics.PLANNER_STATE, QOS_DEFAULT)
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=self._refresh)
-        self.create_timer(self.config.control_period, self.watchdog)
+        diagnostics = advertise(self, self.stats, refresh=self._refresh, inputs=(topics.ODOM, topics.OBSTACLES))
+        self.log = ConditionLog(self.get_logger(), diagnostics.repeat_s, diagnostics.lasting_s)
+        self.waiting = False  # the newest odometry came while the obstacles were stale: it plans when they come
+        self.create_timer(self.config.control_period, self.watchdog)  # behaviour: the node's (simulated) clock ...
+        self.create_timer(self.config.control_period / 2, lambda: self.watchdog(steady=True),  # ... and liveness
+                          clock=self.get_steady_clock())
         self.create_timer(report_period, self._report)
         source = "parameter route_waypoints" if self.planner.route is not None else route_topic
         self.get_logger().info(f"{self.config.model.value} MPC, horizon {self.config.horizon} x {self.config.dt:g} s, "
-                               f"K = {self.config.obstacles.max_obstacles}, route from {source}")
+                               f"K = {self.config.obstacles.max_obstacles}, route from {source}; brakes when inputs "
+                               f"are older than {self.config.failsafe.stale_after_s:g} s")
         if self.planner.route is None:
             self.create_subscription("nav_msgs/msg/Path", route_topic, self.on_route, QOS_LATCHED)
         self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
         self.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
-        self.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles, QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles, QOS_DEFAULT,
+                                 raw=True)
+
+    @property
+    def said(self) -> set[str]:
+        """The conditions there are now (said, or counted while they keep coming back)."""
+        return set(self.log.active)
+
+    def _clocks(self) -> tuple[int, int]:
+        """Now on the node's clock and on the steady clock (ns)."""
+        return self.get_clock().now_ns(), self.get_steady_clock().now_ns()
+
+    def _stale(self, clock_ns: int, steady_ns: int) -> list[Staleness]:
+        """The stale inputs now (by the steady clock too while the node's clock runs with it)."""
+        running = self.get_clock().running(steady_ns, int(1.5 * self.config.control_period * 1e9))
+        return self.inputs.stale(clock_ns, steady_ns, running)
 
     def _route_from_parameter(self, values: list[float]) -> Route:
         if len(values) % 2 or len(values) < 4:
@@ -102,12 +121,30 @@ class PlannerNode(Node):
             if item.header.frame_id == BASE_FRAME:
                 self.mounts[item.child_frame_id] = pose_msgs.matrix_from_transform(item.transform)
 
-    def on_obstacles(self, msg: Any) -> None:
-        """Keep the newest obstacles."""
+    def on_obstacles(self, cdr: bytes) -> None:
+        """Keep the newest obstacles, read straight from their bytes (a flood costs no time); a bad or implausible
+        array, a repeat or a late one is not fresh: it is dropped (bad ones said in one line), and the obstacles age."""
         try:
-            self.obstacles = obstacles_from_msg(msg)
+            obstacles = obstacles_from_cdr(cdr)
+            problem = implausible_emptiness(self.obstacles, obstacles, self._ego_in(obstacles.frame_id),
+                                            self.config.failsafe.vanish_range)
         except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.OBSTACLES}: {err}")
+            problem = str(err)
+        if problem:
+            self.stats.count("obstacles_dropped_bad")
+            self.log.update("bad obstacles", True, f"dropped a message on {topics.OBSTACLES}: {problem}",
+                            over=f"{topics.OBSTACLES} good again")
+            return
+        self.log.update("bad obstacles", False, over=f"{topics.OBSTACLES} good again")
+        if self.inputs.take(Source.OBSTACLES, obstacles.stamp_ns, *self._clocks()):
+            self.obstacles = obstacles
+            if self.waiting and self.odometry is not None:
+                self._tick(self.odometry)
+
+    def _ego_in(self, frame_id: str) -> np.ndarray:
+        """Where the car is (x, y) in a frame obstacles come in: its origin for the car's own frames, else where the
+        newest odometry puts it."""
+        return np.zeros(2) if frame_id in self.mounts else self.odometry_position
 
     def on_odometry(self, msg: Any) -> None:
         """Plan from this pose with the newest obstacles; publish the command and the plan."""
@@ -120,13 +157,16 @@ class PlannerNode(Node):
             self.get_logger().info("odometry stamps jumped back: the stream restarted; the commands sent and the anchor "
                                    "are forgotten")
             self.sent.clear()
-            self.anchor = None
+            self.anchor = self.bridge = None
+            self.odometry = None
+        if not self.inputs.take(Source.ODOMETRY, odometry.stamp_ns, *self._clocks()):
+            return  # the same stamp again, or a late one: nothing new to plan from
+        self.odometry_position = np.array(odometry.pose[:2, 3], dtype=np.float64)
         if self.anchor_odometry:
             odometry = self._anchored(odometry)
+        odometry = self._bridged(odometry)
         self.poses.add(odometry.stamp_ns, odometry.pose)
         self.odometry = odometry
-        self.last_odometry_s = self.get_clock().now_s()
-        self._said_if(False, "odometry")
         self._tick(odometry)
 
     @property
@@ -135,22 +175,60 @@ class PlannerNode(Node):
         return max(self.config.max_latency_s, self.config.stale_after_s)
 
     def _tick(self, odometry: OdometryEstimate) -> None:
-        """One plan from the odometry carried forward to now, with the newest obstacles."""
-        self.last_tick_s = self.get_clock().now_s()
+        """One plan from the odometry carried forward to now, with the newest obstacles. While they are stale it
+        waits for them (a scan's obstacles may come just after its odometry: braking then would release a lockstep
+        simulator's step for nothing); the watchdog brakes if they stay stale."""
+        clock_ns, steady_ns = self._clocks()
+        self.waiting = bool(self._stale(clock_ns, steady_ns))
+        if self.waiting:
+            return
         state = self._now(state_of(odometry))
-        obstacles, stale = self._obstacles_now(odometry)
+        obstacles, capped = self._obstacles_now(odometry)
         late = self._on_timeline(odometry.stamp_ns) and state.stamp_ns - odometry.stamp_ns > self.patience_s * 1e9
-        self._said_if(late, "late odometry", f"odometry is {(state.stamp_ns - odometry.stamp_ns) * 1e-9:.1f} s behind "
-                      f"the clock: planned from it carried forward, speed capped at {self.config.stale_speed:g} m/s")
-        step = self.planner.step(state, obstacles, stale=stale or late)
+        self.log.update("late odometry", late, f"odometry is {(state.stamp_ns - odometry.stamp_ns) * 1e-9:.1f} s behind "
+                        f"the clock: planned from it carried forward, speed capped at {self.config.stale_speed:g} m/s",
+                        over="odometry on time again")
+        step = self.planner.step(state, obstacles, stale=capped or late)
+        if step.status is TickStatus.BRAKE and step.reason.startswith("deadline"):
+            self.inputs.braked(clock_ns, steady_ns)
+            self._say_braking(step.reason)
+        else:
+            self.inputs.released()
+            self._say_braking("")
+        if step.dropped:
+            self.stats.count("obstacles_dropped", step.dropped)
+        self.log.update("obstacles dropped", step.dropped > 0, f"{step.dropped} obstacles dropped: only the "
+                        f"{self.config.obstacles.max_considered} nearest are considered", over="no obstacles dropped")
+        self._publish_step(step, odometry.stamp_ns)
+        if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
+            self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
+
+    def _blind_brake(self, odometry: OdometryEstimate, stale: list[Staleness]) -> PlanStep:
+        """The next braking command (the core's), from the newest odometry carried forward, at its measured speed."""
+        first = stale[0]
+        state = self._now(state_of(odometry))._replace(speed=float(odometry.twist[0]))
+        step = self.planner.blind_brake(state, f"{first.reason} ({first.detail})")
+        self._say_braking(step.reason)
+        return step
+
+    def _say_braking(self, reason: str) -> None:
+        """Say when braking starts (each reason a condition of its own) and when the car may drive again."""
+        key = reason.split(" (")[0]
+        for other in [name for name in self.log.active if name.startswith("brake ") and name != f"brake {key}"]:
+            self.log.update(other, False, over=f"{other[6:]} over" if key else "inputs fresh again: planning resumes")
+        if key:
+            self.log.update(f"brake {key}", True, f"braking to a stop: {reason}", Level.WARN)
+        self.stats.report("braking", Level.WARN if key else Level.OK, f"braking: {reason}")
+
+    def _publish_step(self, step: PlanStep, stamp_ns: int) -> None:
+        """A tick's command, plan, markers and /ssf/planner_state (stamped with its odometry, or the clock for a
+        brake the watchdog decided)."""
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
         if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
             self.marker_pub.publish(self.markers.plan(step.plan))
-        self._publish_state(odometry.stamp_ns, step)
+        self._publish_state(stamp_ns, step)
         self.stats.record(step.solve_ms, "ticks")
-        if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
-            self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
 
     def _now(self, state: VehicleState) -> VehicleState:
         """The odometry's state carried forward to now by the commands sent since its stamp: the perception chain's
@@ -182,15 +260,36 @@ class PlannerNode(Node):
         frame = self.planner.route.frame_id if self.planner.route is not None else "odom"
         return replace(odometry, pose=self.anchor @ odometry.pose, frame_id=frame)
 
+    def _bridged(self, odometry: OdometryEstimate) -> OdometryEstimate:
+        """Odometry in the route's frame across a restarted odometry node (a new frame from its first scan, on the same
+        clock): a pose far from where the last one, carried forward by the commands sent since, puts the car is placed
+        there, and every later one with it."""
+        if self.bridge is not None:
+            odometry = replace(odometry, pose=self.bridge @ odometry.pose)
+        if self.odometry is None or odometry.stamp_ns <= self.odometry.stamp_ns:
+            return odometry
+        vehicle = self.config.vehicle
+        expected = carried_forward(state_of(self.odometry), list(self.sent), odometry.stamp_ns, vehicle.max_accel,
+                                   vehicle.max_decel)
+        bridge = frame_bridge(expected, odometry.pose, self.config.failsafe.frame_jump_m)
+        if bridge is None:
+            return odometry
+        jump = float(np.hypot(odometry.pose[0, 3] - expected.x, odometry.pose[1, 3] - expected.y))
+        self.get_logger().warning(f"odometry jumped {jump:.1f} m from where the car is: a new odometry frame (a restarted "
+                                  "odometry node); placed where the commands since its last pose drove the car")
+        self.bridge = bridge if self.bridge is None else bridge @ self.bridge
+        return replace(odometry, pose=bridge @ odometry.pose)
+
     def _obstacles_now(self, odometry: OdometryEstimate) -> tuple[Obstacles | None, bool]:
         """The newest obstacles in the route's frame (None when there are none or they cannot be placed), and whether
         they are stale: an old picture of the road still holds the parked cars, so it is kept, at a capped speed."""
         odom_frame, stamp_ns = odometry.frame_id, odometry.stamp_ns
         route_frame = self.planner.route.frame_id if self.planner.route is not None else odom_frame
         if route_frame != odom_frame:
-            self._said_if(True, "frames", f"route frame '{route_frame}' is not the odometry frame '{odom_frame}': "
-                          "obstacles cannot be placed")
+            self.log.update("frames", True, f"route frame '{route_frame}' is not the odometry frame '{odom_frame}': "
+                            "obstacles cannot be placed")
             return None, True
+        self.log.update("frames", False)
         obstacles = self.obstacles
         if obstacles is not None and self.anchor is not None and obstacles.frame_id == self.anchor_frame:
             obstacles = obstacles.transformed(self.anchor, route_frame)
@@ -205,21 +304,23 @@ class PlannerNode(Node):
         age = (stamp_ns - obstacles.stamp_ns) * 1e-9 if obstacles is not None else float("inf")
         restarted = obstacles is not None and (obstacles.stamp_ns > now_ns if clock_agrees else -age > patience)
         if obstacles is None or restarted:
-            self._said_if(True, "obstacles", f"no obstacles ({'none yet' if obstacles is None else 'from before a restart'}"
-                          f"): speed capped at {self.config.stale_speed:g} m/s")
+            why = "none yet" if obstacles is None else "from before a restart"
+            self.log.update("obstacles", True, f"no obstacles ({why}): speed capped at {self.config.stale_speed:g} m/s",
+                            over="obstacles fresh again")
             return None, True
         aged = clock_agrees and (now_ns - obstacles.stamp_ns) * 1e-9 > patience
         stale = age > self.config.stale_after_s or aged
-        self._said_if(stale, "obstacles", f"obstacles are stale ({age:.1f} s older than the odometry"
-                      f"{f', {(now_ns - obstacles.stamp_ns) * 1e-9:.1f} s by the clock' if aged else ''}): the last ones "
-                      f"kept, speed capped at {self.config.stale_speed:g} m/s")
+        self.log.update("obstacles", stale, f"obstacles are stale ({age:.1f} s older than the odometry"
+                        f"{f', {(now_ns - obstacles.stamp_ns) * 1e-9:.1f} s by the clock' if aged else ''}): the last "
+                        f"ones kept, speed capped at {self.config.stale_speed:g} m/s", over="obstacles fresh again")
         pose = self.poses.at(obstacles.stamp_ns)
         if pose is None and obstacles.stamp_ns > stamp_ns:
             pose = self._carried_pose(odometry, obstacles.stamp_ns)
         placed = obstacles_in_route_frame(obstacles, route_frame, pose, self.mounts.get(obstacles.frame_id))
         if placed is None:
-            self._said_if(True, "obstacles", f"obstacles in frame '{obstacles.frame_id}' cannot be placed (no pose at "
-                          f"their stamp or no {BASE_FRAME} -> {obstacles.frame_id} transform): speed capped")
+            self.log.update("obstacles", True, f"obstacles in frame '{obstacles.frame_id}' cannot be placed (no pose "
+                            f"at their stamp or no {BASE_FRAME} -> {obstacles.frame_id} transform): speed capped",
+                            over="obstacles fresh again")
         return placed, stale or placed is None
 
     def _carried_pose(self, odometry: OdometryEstimate, stamp_ns: int) -> np.ndarray:
@@ -232,20 +333,18 @@ class PlannerNode(Node):
         pose[0, 3], pose[1, 3] = after.x, after.y
         return pose
 
-    def watchdog(self) -> None:
-        """Every control period: when odometry is late (a loaded perception chain answers less often than the
-        control period), plan again from the newest pose carried forward by the commands sent since; once none has
-        come for longer than the latency that can be compensated, slow down to a stop (said once)."""
-        arrived, ticked = self.last_odometry_s, self.last_tick_s
-        if self.odometry is None or arrived is None or ticked is None:  # none yet, or its first tick is under way
+    def watchdog(self, steady: bool = False) -> None:
+        """Every control period of the node's clock and every half of one of the steady clock (whatever the node's
+        clock does: standing still in lockstep or with a dead simulator, gone back): while an input is stale, the next
+        braking command. The steady watchdog judges by the node's clock only while it runs with the steady one (in
+        lockstep a brake would release a step and age the inputs itself); else it brakes for silent inputs alone."""
+        if self.odometry is None:  # nothing commanded yet: the car stands, or its own timeout stops it
             return
-        now = self.get_clock().now_s()
-        age = now - arrived
-        if abs(age) > self.patience_s:  # negative: from before a restart
-            self._said_if(True, "odometry", f"odometry is stale ({age:.1f} s old): braking")
-            self._publish(braking_on_the_arc(self.last_command, self.config.vehicle.max_decel * self.config.control_period))
-        elif age > LATE_ODOMETRY_PERIODS * self.config.control_period and now - ticked >= self.config.control_period:
-            self._tick(self.odometry)  # in lockstep the clock waits for the planner: odometry is never late there
+        clock_ns, steady_ns = self._clocks()
+        running = self.get_clock().running(steady_ns, int(1.5 * self.config.control_period * 1e9))
+        stale = self._stale(clock_ns, steady_ns) if not steady or running else self.inputs.silent(steady_ns)
+        if stale and self.inputs.brake_due(clock_ns, steady_ns):
+            self._publish_step(self._blind_brake(self.odometry, stale), clock_ns)
 
     def _publish(self, command: Command) -> None:
         self.last_command = command
@@ -253,24 +352,6 @@ class PlannerNode(Node):
         vector = messages.msg_type("geometry_msgs/msg/Vector3")
         self.cmd_pub.publish(messages.msg_type("geometry_msgs/msg/Twist")(
             linear=vector(x=float(command.linear), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=float(command.angular))))
-
-    def _said_if(self, condition: bool, topic: str, text: str = "") -> None:
-        """Say a problem once while it lasts, and once per SAY_AGAIN_S when it keeps coming back (a loaded graph's
-        latency hovers around the limits); say when it is over only if it was said."""
-        if condition and topic not in self.said:
-            self.said.add(topic)
-            now = time.monotonic()
-            if now - self._said_at.get(topic, -SAY_AGAIN_S) >= SAY_AGAIN_S:
-                self._said_at[topic] = now
-                self._announced.add(topic)
-                self.get_logger().warning(text)
-            else:
-                self.stats.count(f"{topic.replace(' ', '_')}_again")
-        elif not condition and topic in self.said:
-            self.said.discard(topic)
-            if topic in self._announced:
-                self._announced.discard(topic)
-                self.get_logger().info(f"{topic} fresh again")
 
     def _refresh(self) -> None:
         self.stats.set("fallbacks", self.planner.stats.fallbacks)
@@ -280,14 +361,6 @@ class PlannerNode(Node):
         if stats.total:
             self.get_logger().info(f"plan: {stats.total} ticks, {stats.fallbacks} fallbacks "
                                    f"({dict(stats.reasons) or 'none'})")
-
-
-def braking_on_the_arc(last: Command, decrement: float) -> Command:
-    """The last command slowed by `decrement`, on the same arc: the car keeps its curvature while it brakes (turning
-    straight in a bend would leave the lane)."""
-    slowed = max(last.linear - decrement, 0.0)
-    curvature = last.angular / last.linear if abs(last.linear) > 1e-3 else 0.0
-    return Command(slowed, curvature * slowed)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -49,7 +49,7 @@ class FusionNode(Node):
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.loop = DistributedLoop(self.config.fusion, self.config.timeout_s)
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=self._refresh)
+        advertise(self, self.stats, refresh=self._refresh, inputs=(topics.FLOW, topics.MASK))
         self.sequence = StampSequence()
         self.matcher: ExactMatcher[SceneFlow, EgoMotion] = ExactMatcher(self._matched)
         self.hint_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, QOS_DEFAULT)

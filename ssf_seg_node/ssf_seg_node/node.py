@@ -36,7 +36,7 @@ class SegNode(Node):
         self.matcher: ExactMatcher[SceneFlow, EgoMotion] = ExactMatcher(self._matched)
         self._compute_ms: list[float] = []
         self.stats = StageStats(self.get_name())
-        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker))
+        advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker), inputs=(topics.FLOW,))
         self.create_timer(report_period, self._report)
         self.create_timer(0.05, lambda: self.matcher.expire(time.monotonic()))
         self.get_logger().info(f"segmenter '{self.segmenter.name}' on {device}")

@@ -206,7 +206,7 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["eval", "nav", "--video-first=1", "--video-dir", bad_output(d, f, folder_too=False)],
     ),
     "bench plan": one_of(
-        lambda d, f: ["bench", "plan", "--obstacles=" + d(st.sampled_from(["a", "1,b", "-1", ",", "1.5", "99"]))],
+        lambda d, f: ["bench", "plan", "--obstacles=" + d(st.sampled_from(["a", "1,b", "-1", ",", "1.5", "100001"]))],
         lambda d, f: ["bench", "plan", f"--ticks={d(st.integers(max_value=0))}"],
         lambda d, f: ["bench", "plan", f"--seed={d(bad_seeds())}"],
         lambda d, f: ["bench", "plan", "--config", hostile_yaml_file(d, f)],
@@ -261,6 +261,14 @@ HOSTILE: dict[str, Case] = {
         lambda d, f: ["bench", "graph", f"--episodes={d(st.integers(max_value=-1))}"],
         lambda d, f: ["bench", "graph", "-p", d(st.sampled_from(["fusion.max_iterations:=1", "nobody:x:=1",
                                                                   "ssf_flow_node:=3", "ssf_flow_node:x:="]))],
+    ),
+    "bench faults": one_of(  # every case must fail before a process starts
+        lambda d, f: ["bench", "faults", "--cases", d(st.sampled_from(["kill-radar-*", "nothing", "kill-flow-*,x"]))],
+        lambda d, f: ["bench", "faults", "--scenario", hostile_yaml_file(d, f)],
+        lambda d, f: ["bench", "faults", "--json", bad_output(d, f)],
+        lambda d, f: ["bench", "faults", "--logs", str(d(st.sampled_from(unwritable_paths(f)[:2])))],
+        lambda d, f: ["bench", "faults", "-p", d(st.sampled_from(["fusion.max_iterations:=1", "nobody:x:=1",
+                                                                   "ssf_flow_node:=3", "ssf_flow_node:x:="]))],
     ),
 }
 

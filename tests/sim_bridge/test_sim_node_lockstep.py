@@ -1,4 +1,5 @@
-"""sim_bridge in lockstep with --driver none: each step waits for its /cmd_vel, or applies the last one on timeout."""
+"""sim_bridge with --driver none: in lockstep each step waits for its /cmd_vel (a wait that ran out does not stall
+the next steps), and in both modes the vehicle stops on its own once the newest command is cmd_vel_timeout old."""
 
 from __future__ import annotations
 
@@ -16,10 +17,10 @@ SMALL = "['route.waypoints=[[0,0],[80,0]]', 'ground.margin=30', 'lidar.columns=1
 
 @pytest.fixture
 def lockstep_graph():
-    def start(timeout_s: float):
+    def start(timeout_s: float, mode: str = "lockstep"):
         sim = SimBridgeNode(argv=[
             "--ros-args", "-p", "scenario:=empty", "-p", f"overrides:={SMALL}", "-p", "driver:=none",
-            "-p", "mode:=lockstep", "-p", f"command_timeout_s:={timeout_s}", "-p", "wait_for_subscribers:=1",
+            "-p", f"mode:={mode}", "-p", f"command_timeout_s:={timeout_s}", "-p", "wait_for_subscribers:=1",
             "-p", "markers:=false", "-p", "exit_when_done:=false",
         ])
         sim.spin_in_thread()
@@ -66,18 +67,42 @@ def test_each_step_waits_for_its_command(lockstep_graph):
     assert sim.sim.frame.ego.speed > 0.5  # the commanded speed, within the acceleration limit
 
 
-def test_without_commands_the_last_one_applies_after_the_timeout(lockstep_graph):
-    sim, scans, cmd = lockstep_graph(timeout_s=0.2)
-    cmd.publish(twist(3.0))
-    assert wait_until(lambda: len(scans) >= 6, timeout_s=20.0)  # later steps come from the timeout
-    assert sim.sim.frame.ego.speed > 1.0  # still driving with the last command
+def test_a_wait_that_ran_out_does_not_stall_the_next_steps_and_the_vehicle_stops_on_its_own(lockstep_graph):
+    """issue 42: with a stage dead each step waited out the whole timeout, then applied the last command. Now one wait
+    runs out, the steps go on at the real-time pace, and once the newest command is cmd_vel_timeout (0.5 s of simulated
+    time) old the vehicle gets zero velocity."""
+    sim, scans, cmd = lockstep_graph(timeout_s=1.0)
+    cmd.publish(twist(8.0))
+    assert wait_until(lambda: sim.sim.frame.index == 1)
+    commanded_at = sim.command_ns
+    assert wait_until(lambda: sim.sim.frame.index >= 12, timeout_s=30.0)  # no command since: one wait, then the pace
+    assert sim.stats.counts["command_timeouts"] == 1 and sim.commands_missing
+    assert sim.sim.frame.ego.speed == 0.0 and sim.stats.counts["cmd_vel_timeouts"] >= 6
+    obeyed = round((commanded_at * 1e-9 + 0.5) / 0.1)  # steps that obeyed the command: zero velocity from then on
+    assert wait_until(lambda: sim.stats.counts["cmd_vel_timeouts"] == sim.sim.frame.index - obeyed)  # (it steps on)
+    cmd.publish(twist(2.0))  # a command again: lockstep again
+    assert wait_until(lambda: not sim.commands_missing and sim.sim.frame.ego.speed > 0.0)
+    index = sim.sim.frame.index
+    ticks_on_the_node(sim, 50)
+    assert sim.sim.frame.index == index  # waiting for its command again
+
+
+def test_in_real_time_the_vehicle_stops_once_the_newest_command_is_too_old(lockstep_graph):
+    sim, scans, cmd = lockstep_graph(timeout_s=1.0, mode="realtime")
+    cmd.publish(twist(5.0))
+    assert wait_until(lambda: sim.command_ns is not None and sim.sim.frame.ego.speed > 1.0, timeout_s=30.0)
+    commanded_at = sim.command_ns
+    assert wait_until(lambda: sim.sim.frame.ego.speed == 0.0, timeout_s=30.0)
+    assert (sim.sim.frame.stamp_ns - commanded_at) * 1e-9 >= 0.5 and sim.stats.counts["cmd_vel_timeouts"] > 0
 
 
 def test_episodes_back_to_back_restart_the_clock_with_the_next_seed():
-    """-p episodes:=2: the second drive starts from stamp zero with the next seed and its own route, then the node is done."""
+    """-p episodes:=2: the second drive starts from stamp zero with the next seed and its own route, then the node is
+    done; -p first_episode_s:=0.2 ends the first one early."""
     sim = SimBridgeNode(argv=[
         "--ros-args", "-p", "scenario:=empty", "-p", f"overrides:={SMALL}", "-p", "driver:=follow", "-p", "rate:=0.0",
         "-p", "seed:=7", "-p", "duration_s:=0.3", "-p", "episodes:=2", "-p", "wait_for_subscribers:=1",
+        "-p", "first_episode_s:=0.2",
         "-p", "markers:=false", "-p", "exit_when_done:=false",
     ])
     listener = Node("listener")
@@ -88,12 +113,12 @@ def test_episodes_back_to_back_restart_the_clock_with_the_next_seed():
         listener.spin_in_thread()
         sim.spin_in_thread()
         assert wait_until(lambda: sim.finished, timeout_s=30.0)
-        assert wait_until(lambda: len(scans) == 8)  # 0.3 s = 3 steps after the first scan, twice
+        assert wait_until(lambda: len(scans) == 7)  # 0.2 s, then 0.3 s = 2 and 3 steps after each first scan
     finally:
         sim.request_shutdown()
         sim.destroy_node()
         listener.destroy_node()
     stamps = [messages.stamp_ns(scan.header.stamp) // 100_000_000 for scan in scans]
-    assert stamps == [0, 1, 2, 3, 0, 1, 2, 3]
+    assert stamps == [0, 1, 2, 0, 1, 2, 3]
     assert sim.sim.seed == 8 and sim.episode == 2
     assert len(routes) == 2

@@ -88,3 +88,43 @@ def test_odometry_and_plan_round_trip():
     path = plan_from_msg(through_cdr(plan_to_msg(plan), "nav_msgs/msg/Path"))
     np.testing.assert_allclose(path.times, times)
     np.testing.assert_allclose(path.states, plan.states, atol=1e-9)
+
+
+@pytest.mark.parametrize("count, frame", [(0, "odom"), (1, "odom"), (3, "lidar_top"), (5, "ab"), (7, ""), (400, "lidar")])
+def test_obstacle_arrays_read_and_written_as_records_equal_the_message_path(count, frame):
+    """The planner reads /ssf/obstacles straight from its CDR bytes (10 000 obstacles in under a millisecond): the
+    same bytes rosbags writes, the same Obstacles the message objects give, whichever 8-byte phase the array starts on."""
+    from ssf_common import messages
+    from ssf_common.conversions import obstacles_from_cdr, obstacles_to_cdr
+
+    rng = np.random.default_rng(count)
+    obstacles = Obstacles(123_456_789_012, frame, ids=np.arange(count), kinds=rng.integers(0, 3, count).astype(np.uint8),
+                          centres=rng.uniform(-50, 50, (count, 3)), sizes=rng.uniform(0, 3, (count, 3)),
+                          yaws=rng.uniform(-3, 3, count), velocities=rng.normal(size=(count, 3)),
+                          velocity_covariances=rng.normal(size=(count, 3, 3)),
+                          yaw_rates=rng.normal(size=count).astype(np.float32).astype(float),
+                          point_counts=rng.integers(0, 900, count), confidences=np.full(count, 0.5))
+    cdr = messages.serialize(obstacles_to_msg(obstacles), "ssf_interfaces/msg/ObstacleArray")
+    assert obstacles_to_cdr(obstacles) == cdr
+    fast, slow = obstacles_from_cdr(cdr), obstacles_from_msg(messages.deserialize(cdr, "ssf_interfaces/msg/ObstacleArray"))
+    assert (fast.stamp_ns, fast.frame_id) == (slow.stamp_ns, slow.frame_id) == (123_456_789_012, frame)
+    for name in ("ids", "kinds", "centres", "sizes", "yaws", "velocities", "velocity_covariances", "yaw_rates",
+                 "point_counts", "confidences"):
+        np.testing.assert_allclose(getattr(fast, name), getattr(slow, name), atol=1e-12, err_msg=name)
+
+
+def test_a_bad_obstacle_array_is_refused_in_one_line():
+    from ssf_common import messages
+    from ssf_common.conversions import obstacles_from_cdr, obstacles_to_cdr
+
+    good = Obstacles(5, "lidar", ids=np.array([1, 2]), kinds=np.array([1, 2]), centres=np.zeros((2, 3)),
+                     sizes=np.ones((2, 3)), yaws=np.zeros(2), velocities=np.zeros((2, 3)))
+    nan = Obstacles(5, "lidar", ids=good.ids, kinds=good.kinds, centres=np.array([[np.nan, 0, 0], [1, 2, 3]]),
+                    sizes=good.sizes, yaws=good.yaws, velocities=good.velocities)
+    with pytest.raises(MessageError, match="NaN/Inf centres"):
+        obstacles_from_cdr(obstacles_to_cdr(nan))
+    with pytest.raises(MessageError, match="do not fit"):
+        obstacles_from_cdr(obstacles_to_cdr(good)[:-50])
+    big_endian = bytes(messages.typestore().serialize_cdr(obstacles_to_msg(good), "ssf_interfaces/msg/ObstacleArray",
+                                                          little_endian=False))
+    assert big_endian[:2] == b"\x00\x00" and obstacles_from_cdr(big_endian).ids.tolist() == [1, 2]  # still read

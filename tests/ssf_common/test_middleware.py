@@ -372,3 +372,92 @@ def test_a_node_that_publishes_and_leaves_at_once_still_delivers_its_last_messag
     assert process.returncode == 0, process.stderr
     assert wait_until(lambda: len(inbox.items) == 5, timeout_s=10)
     assert [messages.stamp_ns(m.header.stamp) for m in inbox.items] == [1, 2, 3, 4, 5]
+
+
+class ManualClock:
+    """A steady clock moved by hand (the executor reads only now_s and these flags)."""
+
+    steady, use_sim_time = True, False
+
+    def __init__(self) -> None:
+        self.seconds = 1000.0
+
+    def now_s(self) -> float:
+        return self.seconds
+
+    def now_ns(self) -> int:
+        return int(self.seconds * 1e9)
+
+
+def test_a_timer_on_simulated_time_starts_a_new_sequence_when_the_clock_jumps_back():
+    """A second episode, a restarted simulator or a looping bag sends /clock back to zero: a watchdog must keep its
+    period on the new time line instead of staying silent until the clock passes its old due time."""
+    node = Node("jumping", argv=["--ros-args", "-p", "use_sim_time:=true"])
+    try:
+        calls: list[int] = []
+        node.get_clock().set_sim_time(50_000_000_000)
+        node.create_timer(0.1, lambda: calls.append(node.get_clock().now_ns()))
+        for stamp in ( 50_100_000_000, 50_200_000_000, 200_000_000, 300_000_000, 400_000_000):
+            node.get_clock().set_sim_time(stamp)
+            node._run_due_timers()
+        assert calls == [50_100_000_000, 50_200_000_000, 300_000_000, 400_000_000]
+    finally:
+        node.destroy_node()
+
+
+def test_a_steady_timer_runs_while_simulated_time_stands_still():
+    node = Node("steady", argv=["--ros-args", "-p", "use_sim_time:=true"])
+    try:
+        steady = ManualClock()
+        on_sim, on_steady = [], []
+        node.get_clock().set_sim_time(5_000_000_000)  # lockstep: the clock stands at 5 s while the graph thinks
+        node.create_timer(0.1, lambda: on_sim.append(1))
+        node.create_timer(0.1, lambda: on_steady.append(steady.seconds), clock=steady)
+        for _ in range(5):
+            steady.seconds += 0.1
+            node._run_due_timers()
+        assert on_sim == [] and on_steady == pytest.approx([1000.1, 1000.2, 1000.3, 1000.4, 1000.5])
+        assert node.get_steady_clock().steady and not node.get_clock().steady
+    finally:
+        node.destroy_node()
+
+
+def test_a_subscription_remembers_when_it_last_heard_a_good_message(nodes):
+    node = nodes("hearing", ["--ros-args", "-p", "use_sim_time:=true"])
+    taken = Inbox()
+
+    def take(msg) -> None:
+        if msg.data == "bad":
+            raise MessageError("bad data")
+        taken(msg)
+
+    subscription = node.create_subscription("std_msgs/msg/String", "/heard", take)
+    String = messages.msg_type("std_msgs/msg/String")
+    node.get_clock().set_sim_time(7_000_000_000)
+    subscription.deliver(messages.serialize(String(data="good"), "std_msgs/msg/String"))
+    heard = subscription.heard
+    assert heard is not None and heard.clock_ns == 7_000_000_000 and subscription.received == 1
+    node.get_clock().set_sim_time(8_000_000_000)
+    subscription.deliver(messages.serialize(String(data="bad"), "std_msgs/msg/String"))
+    assert subscription.heard == heard and subscription.dropped == 1  # a dropped message is not heard
+    assert subscription in node.subscriptions
+
+
+def test_simulated_time_runs_with_the_steady_clock_in_real_time_not_in_lockstep(monkeypatch):
+    """A planner judges input age by the steady clock too only while the simulator runs in real time: in lockstep
+    simulated time crawls while the graph thinks (a step per half second), and it stands still when the simulator died."""
+    from ssf_common.middleware.node import Clock
+
+    steady = [0]
+    monkeypatch.setattr("ssf_common.middleware.node.time.monotonic_ns", lambda: steady[0])
+    realtime, lockstep = Clock(), Clock()
+    realtime.use_sim_time = lockstep.use_sim_time = True
+    for tick in range(12):
+        steady[0] = tick * 100_000_000
+        realtime.set_sim_time(tick * 100_000_000)  # 0.1 s of simulated time per 0.1 s
+        if tick % 5 == 0:
+            lockstep.set_sim_time(tick // 5 * 100_000_000)  # 0.1 s per 0.5 s
+    assert realtime.running(steady[0] + 50_000_000, 150_000_000)
+    assert not lockstep.running(steady[0] + 50_000_000, 150_000_000)
+    assert not realtime.running(steady[0] + 300_000_000, 150_000_000)  # no /clock for 0.3 s: stopped
+    assert Clock().running(0, 0)  # wall time always runs

@@ -10,7 +10,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from ssf_common.errors import SsfError
-from ssf_common.middleware.node import Clock, Logger, Node, Publisher, Subscription, Timer
+from ssf_common.middleware.node import Clock, Heard, Logger, Node, Publisher, SteadyClock, Subscription, Timer
 from ssf_common.middleware.qos import (
     QOS_CLOCK,
     QOS_DEFAULT,
@@ -24,6 +24,7 @@ from ssf_common.middleware.qos import (
 __all__ = [
     "Clock",
     "Durability",
+    "Heard",
     "Logger",
     "Node",
     "Publisher",
@@ -33,6 +34,7 @@ __all__ = [
     "QOS_SENSOR_DATA",
     "QoS",
     "Reliability",
+    "SteadyClock",
     "Subscription",
     "Timer",
     "run",

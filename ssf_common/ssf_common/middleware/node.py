@@ -2,16 +2,15 @@
 
 from __future__ import annotations
 
-import heapq
-import itertools
+import collections
 import os
 import queue
 import sys
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from dataclasses import dataclass
+from typing import Any, NamedTuple, TypeVar
 
 from pydantic import BaseModel
 
@@ -63,9 +62,15 @@ class Logger:
 class Clock:
     """Node clock: wall time, or the latest /clock value when use_sim_time is set."""
 
+    steady = False  # a clock that can stand still or jump back (simulated time) or be set (wall time)
+
+    RATE_WINDOW_NS = 1_000_000_000  # sim time runs with the steady clock when it kept pace over this long ...
+    RATE = 0.7  # ... at least at this rate (a loaded real-time simulator lags; one in lockstep crawls or stands)
+
     def __init__(self) -> None:
         self.use_sim_time = False
         self._sim_ns = 0
+        self._ticks: collections.deque[tuple[int, int]] = collections.deque()  # (steady ns, sim ns) of recent /clock
 
     def now_ns(self) -> int:
         """Current time in nanoseconds (0 in sim time until the first /clock)."""
@@ -78,21 +83,64 @@ class Clock:
     def set_sim_time(self, nanoseconds: int) -> None:
         """Advance sim time (from /clock)."""
         self._sim_ns = nanoseconds
+        now = time.monotonic_ns()
+        self._ticks.append((now, int(nanoseconds)))
+        while self._ticks and now - self._ticks[0][0] > self.RATE_WINDOW_NS:
+            self._ticks.popleft()
+
+    def running(self, steady_ns: int, within_ns: int) -> bool:
+        """Whether the clock moves with the steady one: wall time, or sim time whose /clock came within `within_ns`
+        and kept pace with the steady clock over the last RATE_WINDOW_NS (a simulator in real time; not one in
+        lockstep, whose time waits for the graph, nor a dead one)."""
+        if not self.use_sim_time:
+            return True
+        if not self._ticks or steady_ns - self._ticks[-1][0] > within_ns:
+            return False
+        (first_steady, first_sim), (last_steady, last_sim) = self._ticks[0], self._ticks[-1]
+        span = last_steady - first_steady
+        return span >= self.RATE_WINDOW_NS // 2 and last_sim - first_sim >= self.RATE * span
 
 
-@dataclass(order=True)
+class SteadyClock:
+    """A clock that cannot stop or go back (rclpy's STEADY_TIME): what liveness checks and their timers run on."""
+
+    steady = True
+    use_sim_time = False
+
+    def now_ns(self) -> int:
+        """Monotonic nanoseconds (an arbitrary origin)."""
+        return time.monotonic_ns()
+
+    def now_s(self) -> float:
+        """Monotonic seconds."""
+        return self.now_ns() * 1e-9
+
+
+@dataclass
 class Timer:
-    """A periodic callback on the node's clock."""
+    """A periodic callback on a clock (the node's, or a steady one)."""
 
     due: float
-    seq: int
-    period: float = field(compare=False)
-    callback: Callable[[], None] = field(compare=False)
-    cancelled: bool = field(default=False, compare=False)
+    period: float
+    callback: Callable[[], None]
+    clock: Clock | SteadyClock
+    cancelled: bool = False
 
     def cancel(self) -> None:
         """Stop the timer."""
         self.cancelled = True
+
+    def advance(self, now: float) -> None:
+        """The next due time after a call at `now`: one period on, missed periods skipped rather than burst."""
+        self.due += self.period
+        if self.due <= now:
+            self.due = now + self.period
+
+    def follow(self, now: float) -> None:
+        """A clock gone back by more than a period (a restarted simulator, a looping bag) starts a new sequence: the
+        timer is due a period from now instead of waiting for the clock to pass the old due time."""
+        if self.due - now > self.period * (1.0 + 1e-9):
+            self.due = now + self.period
 
 
 class Publisher:
@@ -121,6 +169,13 @@ class Publisher:
         return self._transport.wait_for_all_acked(timeout_s)
 
 
+class Heard(NamedTuple):
+    """When a message came: the node's clock (simulated time under use_sim_time) and the steady clock (ns)."""
+
+    clock_ns: int
+    steady_ns: int
+
+
 class Subscription:
     """Delivers decoded messages (or raw CDR) of one topic to a callback on the node's thread."""
 
@@ -132,11 +187,15 @@ class Subscription:
         self._raw = raw
         self.transport: Any = None
         self.dropped = 0
+        self.received = 0  # messages its callback took without raising
+        self.heard: Heard | None = None  # when the newest of them came
 
     def deliver(self, cdr: bytes) -> None:
         """Decode one sample and run the callback; a bad message is logged and dropped."""
         try:
             self._callback(cdr if self._raw else messages.deserialize(cdr, self.msg_type))
+            self.received += 1
+            self.heard = Heard(self._node.get_clock().now_ns(), time.monotonic_ns())
         except SsfError as err:
             self.dropped += 1
             self._node.get_logger().error(f"dropped a message on {self.topic_name}: {err}")
@@ -193,7 +252,7 @@ class Node:
         self._clock = Clock()
         self._events: queue.SimpleQueue[Any] = queue.SimpleQueue()
         self._timers: list[Timer] = []
-        self._timer_seq = itertools.count()
+        self._steady_clock = SteadyClock()
         self._subscriptions: list[Subscription] = []
         self._publishers: list[Publisher] = []
         self._stop = threading.Event()
@@ -220,6 +279,15 @@ class Node:
     def get_clock(self) -> Clock:
         """The node's clock (sim time when use_sim_time)."""
         return self._clock
+
+    def get_steady_clock(self) -> SteadyClock:
+        """A clock that cannot stop or jump back, for liveness: `create_timer(period, callback, clock=...)`."""
+        return self._steady_clock
+
+    @property
+    def subscriptions(self) -> list[Subscription]:
+        """The node's subscriptions (as rclpy's Node.subscriptions)."""
+        return list(self._subscriptions)
 
     @property
     def backend_name(self) -> str:
@@ -310,12 +378,15 @@ class Node:
         subscription.transport.destroy()
         return True
 
-    def create_timer(self, period_s: float, callback: Callable[[], None]) -> Timer:
-        """Call back every period_s seconds of the node's clock."""
+    def create_timer(self, period_s: float, callback: Callable[[], None],
+                     clock: Clock | SteadyClock | None = None) -> Timer:
+        """Call back every period_s seconds of the node's clock, or of `clock` (get_steady_clock(): a timer that runs
+        whatever simulated time does)."""
         if period_s <= 0:
             raise ConfigError(f"timer period must be positive, got {period_s}")
-        timer = Timer(self._clock.now_s() + period_s, next(self._timer_seq), period_s, callback)
-        heapq.heappush(self._timers, timer)
+        clock = clock or self._clock
+        timer = Timer(clock.now_s() + period_s, period_s, callback, clock)
+        self._timers.append(timer)
         self._events.put(None)  # wake the executor to consider the new deadline
         return timer
 
@@ -410,25 +481,26 @@ class Node:
             event.drain()
 
     def _time_to_next_timer(self) -> float:
-        while self._timers and self._timers[0].cancelled:
-            heapq.heappop(self._timers)
-        if not self._timers:
-            return 0.5
-        remaining = self._timers[0].due - self._clock.now_s()
-        if self._clock.use_sim_time:  # simulated time moves only with a /clock message, an event that wakes the node:
-            return 0.5 if remaining > 0 else 0.0  # nothing to poll for meanwhile
-        return max(remaining, 0.0)
+        self._timers = [timer for timer in self._timers if not timer.cancelled]
+        wait = 0.5
+        for timer in self._timers:
+            now = timer.clock.now_s()
+            timer.follow(now)
+            remaining = max(timer.due - now, 0.0)
+            if timer.clock.use_sim_time and remaining > 0:  # simulated time moves only with a /clock message, an
+                remaining = 0.5  # event that wakes the node: nothing to poll for meanwhile
+            wait = min(wait, remaining)
+        return wait
 
     def _run_due_timers(self) -> None:
-        now = self._clock.now_s()
-        while self._timers and (self._timers[0].cancelled or self._timers[0].due <= now):
-            timer = heapq.heappop(self._timers)
+        for timer in list(self._timers):  # in the order they were created
             if timer.cancelled:
                 continue
-            timer.due += timer.period
-            if timer.due <= now:  # fell behind: skip missed periods rather than bursting
-                timer.due = now + timer.period
-            heapq.heappush(self._timers, timer)
+            now = timer.clock.now_s()
+            timer.follow(now)
+            if timer.due > now:
+                continue
+            timer.advance(now)
             try:
                 timer.callback()
             except SsfError as err:

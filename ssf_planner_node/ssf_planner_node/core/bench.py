@@ -23,6 +23,7 @@ class BenchRow:
 
     obstacles: int
     max_obstacles: int
+    max_considered: int
     ticks: int
     solve_ms_median: float
     solve_ms_p95: float
@@ -59,9 +60,14 @@ class Traffic:
                          yaws=np.zeros(count), velocities=np.c_[self.vx, self.vy, np.zeros(count)])
 
 
+MAX_SLOTS = 50  # the most obstacles a problem takes (ObstacleConfig.max_obstacles' bound)
+
+
 def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> BenchRow:
-    """Drive `ticks` control periods among `count` obstacles (K = max(count, config's K)); time every solve."""
-    slots = max(count, config.obstacles.max_obstacles)
+    """Drive `ticks` control periods among `count` obstacles, timing every tick (K = max(count, config's K) up to 50
+    obstacles, so that every one is in the problem; beyond, the config's K: a flood goes through the planner's own
+    selection, the obstacles.max_considered nearest, then the K nearest to the planned motion)."""
+    slots = max(count, config.obstacles.max_obstacles) if count <= MAX_SLOTS else config.obstacles.max_obstacles
     config = config.model_copy(update={"obstacles": config.obstacles.model_copy(update={"max_obstacles": slots})})
     planner = RdaPlanner(config, Route(np.array([[0.0, 0.0], [100000.0, 0.0]])))
     traffic = Traffic(count, np.random.default_rng([seed, count]))
@@ -71,8 +77,9 @@ def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> B
     planner.step(VehicleState(0, x, y, yaw, speed), traffic.at(0.0, x))  # warm-up: first call, allocations
     for tick in range(1, ticks + 1):
         t = tick * period
+        obstacles = traffic.at(t, x)
         started = time.perf_counter()
-        step = planner.step(VehicleState(int(round(t * 1e9)), x, y, yaw, speed), traffic.at(t, x))
+        step = planner.step(VehicleState(int(round(t * 1e9)), x, y, yaw, speed), obstacles)
         spent.append((time.perf_counter() - started) * 1e3)
         rounds.append(step.rounds)
         limit = config.vehicle
@@ -80,6 +87,6 @@ def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> B
         heading = yaw + step.command.angular * period / 2
         x, y, yaw = x + speed * period * np.cos(heading), y + speed * period * np.sin(heading), yaw + step.command.angular * period
     stats = planner.stats
-    return BenchRow(count, slots, ticks, round(float(np.median(spent)), 2), round(float(np.percentile(spent, 95)), 2),
+    return BenchRow(count, slots, config.obstacles.max_considered, ticks, round(float(np.median(spent)), 2), round(float(np.percentile(spent, 95)), 2),
                     round(float(np.max(spent)), 2), stats.fallbacks, round(stats.fallbacks / stats.total, 4),
                     dict(stats.reasons), round(float(np.mean(rounds)), 2))

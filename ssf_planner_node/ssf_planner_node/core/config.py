@@ -49,6 +49,9 @@ class ObstacleConfig(Section):
     """Which obstacles the problem sees and how far it keeps from them (RDA's min_sd / max_sd / slack_gain)."""
 
     max_obstacles: int = Field(10, ge=0, le=50, description="K: the obstacles nearest to the planned motion are used")
+    max_considered: int = Field(200, ge=1, description="at most this many obstacles, the nearest to the car (a "
+                                "linear-time selection), are considered at all; the rest are dropped and the drop said "
+                                "in the log: a flood of obstacles cannot stretch a tick")
     range: float = Field(40.0, gt=0.0, description="obstacles farther than this from the ego are ignored (m)")
     safety_distance: float = Field(0.1, ge=0.0, description="hard: the footprints never come closer than this (m)")
     comfort_distance: float = Field(1.0, ge=0.0, description="soft: distance below which slack_gain is paid per metre")
@@ -87,6 +90,30 @@ class PassingConfig(Section):
     hold_s: float = Field(3.0, ge=0.0, description="a choice of lane is kept at least this long (s)")
 
 
+class FailSafeConfig(Section):
+    """When inputs are stale and how the car brakes then (parameters `failsafe.*`)."""
+
+    sensor_period: float = Field(0.1, gt=0.0, le=1.0, description="the LiDAR's period (s): odometry and obstacles "
+                                 "come once per scan")
+    stale_periods: float = Field(2.0, gt=0.0, description="an input older than this many sensor periods by the node's "
+                                 "clock brakes the car")
+    silent_after_s: float = Field(2.0, gt=0.0, description="an input silent this long by the steady clock brakes the "
+                                  "car whatever the node's clock does (a stopped simulator, lockstep with a dead stage)")
+    vanish_range: float = Field(20.0, ge=0.0, description="an empty obstacle array right after one holding an "
+                                "obstacle within this distance (m) of the car is dropped as implausible (they cannot all "
+                                "be gone in one scan; a picture empties only after one with nothing that near); 0: every "
+                                "empty array is believed")
+
+    frame_jump_m: float = Field(3.0, ge=0.0, description="odometry this far (m) from where the last pose, carried "
+                                "forward by the commands sent since, puts the car started a new frame (a restarted "
+                                "odometry node): it is placed there, so that the route keeps its frame; 0: never")
+
+    @property
+    def stale_after_s(self) -> float:
+        """Age (node clock) past which an input is stale."""
+        return self.stale_periods * self.sensor_period
+
+
 class SolverConfig(Section):
     """How each tick is solved: QP solver of the CasADi wheel, primal/dual rounds, deadline."""
 
@@ -115,8 +142,9 @@ class PlannerConfig(Section):
     corridor_gain: float = Field(1000.0, gt=0.0, description="cost per metre and step outside the corridor: it is soft, "
                                  "so a car already outside it (a pose error, a swerve) steers back instead of braking")
     stale_speed: float = Field(2.0, ge=0.0, description="speed cap (m/s) while obstacles are stale")
-    stale_after_s: float = Field(0.5, gt=0.0, description="obstacles older than this (against the odometry) are stale; "
-                                 "no odometry for longer than this and than max_latency_s brakes the car")
+    stale_after_s: float = Field(0.5, gt=0.0, description="obstacles older than this against the odometry cap the "
+                                 "speed (a picture that old lags the pose; obstacles that stop coming brake the car: "
+                                 "failsafe.*)")
     max_latency_s: float = Field(1.0, ge=0.0, description="odometry is carried forward to now by the commands sent "
                                  "since (latency compensation); older than this by the clock it caps the speed, and "
                                  "obstacles older than this are stale; 0: plan from its stamp")
@@ -125,6 +153,7 @@ class PlannerConfig(Section):
     obstacles: ObstacleConfig = ObstacleConfig()
     passing: PassingConfig = PassingConfig()
     solver: SolverConfig = SolverConfig()
+    failsafe: FailSafeConfig = FailSafeConfig()
 
     @model_validator(mode="after")
     def _speeds(self) -> PlannerConfig:

@@ -10,7 +10,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ssf_common.geometry.kinematics import PlanarState, driven
-from ssf_common.geometry.se3 import yaw_of
+from ssf_common.geometry.se3 import invert, yaw_matrix, yaw_of
 from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_planner_node.core.models import Command
 from ssf_planner_node.core.planner import VehicleState
@@ -89,3 +89,15 @@ def obstacles_in_route_frame(obstacles: Obstacles, route_frame: str, base_pose: 
     if base_pose is None or sensor_mount is None:
         return None
     return obstacles.transformed(base_pose @ sensor_mount, route_frame)
+
+
+def frame_bridge(expected: VehicleState, pose: np.ndarray, jump_m: float) -> np.ndarray | None:
+    """When an odometry pose lies more than `jump_m` from where the car is expected (the last pose carried forward),
+    the odometry started a new frame (a restarted odometry node starts at its first scan): the planar transform (route
+    frame <- new frame) that puts the pose there; None while the pose is where it should be."""
+    if jump_m <= 0 or np.hypot(pose[0, 3] - expected.x, pose[1, 3] - expected.y) <= jump_m:
+        return None
+    placed = np.array(pose, dtype=np.float64)
+    placed[:3, :3] = yaw_matrix(expected.yaw - yaw_of(pose))[:3, :3] @ placed[:3, :3]
+    placed[0, 3], placed[1, 3] = expected.x, expected.y
+    return placed @ invert(pose)

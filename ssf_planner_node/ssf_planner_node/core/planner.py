@@ -1,8 +1,11 @@
 """The RDA-style MPC: per tick, warm start from the previous plan, then rounds of (1) the dual step: per obstacle and
 horizon step the separating direction between planned footprint and predicted obstacle, in closed form, and
 (2) the primal step: the QP in states and controls with the distance bounds those directions make linear,
-until the plan stops moving or the rounds run out. A failed or late solve never stalls the car: the previous
-plan, shifted to now, if it is still collision-free; else full braking. Every fallback is counted."""
+until the plan stops moving or the rounds run out. A failed solve never stalls the car: the previous plan, shifted to
+now, if it is still collision-free; else full braking. A late tick (past the deadline) and a stale input (`brake`,
+called by the fail safe) brake blind, on the last command's arc. Every brake starts from the lower of the speed last
+commanded and the speed measured, each command slower than the last. Every fallback is counted, by its reason. At
+most `obstacles.max_considered` obstacles, the nearest, are considered at all (a linear-time selection)."""
 
 from __future__ import annotations
 
@@ -17,7 +20,8 @@ import numpy as np
 from ssf_common.geometry.kinematics import PlanarState, driven
 from ssf_common.records import ObstacleKind, Obstacles, Plan
 from ssf_planner_node.core import avoidance
-from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.config import Model, PlannerConfig
+from ssf_planner_node.core.failsafe import brake_command
 from ssf_planner_node.core.models import Command, command_of, rollout, trajectory
 from ssf_planner_node.core.passing import LaneChooser
 from ssf_planner_node.core.problem import Reference, TrackingProblem
@@ -51,6 +55,21 @@ class _Candidate(NamedTuple):
     clearance: float
 
 
+class Reason(str, Enum):
+    """Why a tick fell back (PlannerState's reason: the key, then details in parentheses)."""
+
+    NO_ROUTE = "no_route"
+    SOLVER_FAILED = "solver_failed"
+    PLAN_COLLIDES = "plan_collides"
+    DEADLINE = "deadline"
+    STALE_ODOMETRY = "stale_odometry"
+    STALE_OBSTACLES = "stale_obstacles"
+
+    def because(self, detail: str = "") -> str:
+        """The reason as PlannerState carries it: `key` or `key (detail)`."""
+        return f"{self.value} ({detail})" if detail else self.value
+
+
 class TickStatus(str, Enum):
     """How a tick's command came about."""
 
@@ -72,6 +91,7 @@ class PlanStep(NamedTuple):
     obstacles: int  # obstacles in the problem
     clearance: float  # smallest predicted distance to an obstacle along the plan (m; inf without obstacles)
     done: bool  # the goal is reached
+    dropped: int = 0  # obstacles beyond the obstacles.max_considered nearest, left out of this tick
 
 
 @dataclass
@@ -112,6 +132,7 @@ class RdaPlanner:
         self._trajectory = trajectory(self.problem.step, config.horizon)
         self.route = route
         self.stats = PlannerStats()
+        self.last_command: Command | None = None  # what the last tick commanded: braking starts from it
         self._memory: _Memory | None = None
         self._applied = np.zeros(2)
         self._ego_radius = 0.5 * float(np.hypot(config.vehicle.length, config.vehicle.width))
@@ -127,10 +148,11 @@ class RdaPlanner:
         started = time.perf_counter()
         cfg = self.config
         if self.route is None:
-            return self._finish(self._brake(state, "no route", status=TickStatus.NO_ROUTE), started)
+            return self._finish(self._brake(state, Reason.NO_ROUTE.because(), status=TickStatus.NO_ROUTE), started)
         done = self.route.remaining(state.vector[:2]) <= 0.0 or \
             np.linalg.norm(state.vector[:2] - self.route.goal) <= cfg.goal_tolerance and state.speed < 0.5
         obstacles = obstacles if obstacles is not None else Obstacles.empty(state.stamp_ns, self.route.frame_id)
+        obstacles, dropped = avoidance.nearest_first(obstacles, state.vector[:2], cfg.obstacles.max_considered)
         # 1. warm start: the previous plan shifted to now (or coasting), and the reference along it
         controls = self._warm_controls(state)
         nominal = rollout(self._trajectory, state.vector, controls)
@@ -173,15 +195,16 @@ class RdaPlanner:
             if moved < cfg.solver.tolerance:
                 break
         elapsed_ms = (time.perf_counter() - started) * 1e3
+        answered = {"rounds": rounds, "count": len(chosen), "done": done, "dropped": dropped}
+        if cfg.solver.deadline_ms and elapsed_ms > cfg.solver.deadline_ms:  # its plan is for a moment already past
+            return self._finish(self.blind_brake(state, Reason.DEADLINE.because(f"{elapsed_ms:.0f} ms"), count=False),
+                                started, **answered)
         if clear is None and (solution is None or not solution.success):
-            reason = f"solver failed ({solution.status if solution else 'no solution'})"
-            return self._finish(self._fallback(state, corners, reason), started, rounds, len(chosen), done)
-        if cfg.solver.deadline_ms and elapsed_ms > cfg.solver.deadline_ms:
-            return self._finish(self._fallback(state, corners, f"late ({elapsed_ms:.0f} ms)"), started, rounds,
-                                len(chosen), done)
+            reason = Reason.SOLVER_FAILED.because(solution.status if solution else "no solution")
+            return self._finish(self._fallback(state, corners, reason), started, **answered)
         if clear is None:
-            return self._finish(self._fallback(state, corners, f"plan collides ({clearance:.2f} m)"), started, rounds,
-                                len(chosen), done)
+            return self._finish(self._fallback(state, corners, Reason.PLAN_COLLIDES.because(f"{clearance:.2f} m")),
+                                started, **answered)
         nominal, controls, clearance = clear
         self._memory = _Memory(state.stamp_ns, nominal, controls)
         command = command_of(cfg, state.vector, controls[0])
@@ -189,18 +212,38 @@ class RdaPlanner:
             command = Command(0.0, 0.0)
         self._applied = controls[0].copy()
         step = PlanStep(command, self._plan(state, nominal, controls), TickStatus.SOLVED, "", 0.0, rounds,
-                        len(chosen), clearance, done)
+                        len(chosen), clearance, done, dropped)
         return self._finish(step, started)
 
+    def blind_brake(self, state: VehicleState, reason: str, count: bool = True) -> PlanStep:
+        """A tick that cannot plan (an input stale, the deadline missed): brake on the arc of the last command, from
+        the lower of that command's speed and the measured `state.speed`, each command slower than the last; counted
+        as a fallback (`count`: here, else by the caller's `_finish`)."""
+        cfg = self.config
+        command = brake_command(self.last_command, state.speed, cfg.vehicle.max_decel * cfg.control_period)
+        speeds = np.maximum(command.linear - cfg.vehicle.max_decel * cfg.dt * np.arange(cfg.horizon), 0.0)
+        curvature = command.angular / command.linear if command.linear > 1e-3 else 0.0
+        turns = curvature * speeds if cfg.model is Model.UNICYCLE else np.full(
+            cfg.horizon, np.arctan(curvature * cfg.vehicle.wheelbase))
+        controls = np.c_[np.diff(np.r_[state.speed, speeds]) / cfg.dt, turns]
+        states = rollout(self._trajectory, state.vector, controls)
+        self._applied = np.zeros(2)
+        self._memory = None
+        step = PlanStep(command, self._plan(state, states, controls), TickStatus.BRAKE, reason, 0.0, 0, 0,
+                        float("inf"), False)
+        return self._finish(step, time.perf_counter()) if count else step
+
     def _finish(self, step: PlanStep, started: float, rounds: int | None = None, count: int | None = None,
-                done: bool | None = None) -> PlanStep:
+                done: bool | None = None, dropped: int | None = None) -> PlanStep:
         self.stats.ticks[step.status] += 1
         if step.reason and step.status is not TickStatus.NO_ROUTE:
             self.stats.reasons[step.reason.split(" (")[0]] += 1
+        self.last_command = step.command
         return step._replace(solve_ms=(time.perf_counter() - started) * 1e3,
                              **({"rounds": rounds} if rounds is not None else {}),
                              **({"obstacles": count} if count is not None else {}),
-                             **({"done": done} if done is not None else {}))
+                             **({"done": done} if done is not None else {}),
+                             **({"dropped": dropped} if dropped is not None else {}))
 
     def _warm_controls(self, state: VehicleState) -> np.ndarray:
         """The previous plan's controls from now on (held piecewise), or coasting when there is none."""
@@ -291,7 +334,7 @@ class RdaPlanner:
 
     def _brake(self, state: VehicleState, reason: str, corners: np.ndarray | None = None,
                status: TickStatus = TickStatus.BRAKE) -> PlanStep:
-        """Full braking in a straight line."""
+        """Full braking in a straight line, from the lower of the speed last commanded and the measured one."""
         cfg = self.config
         speeds = np.maximum(state.speed - cfg.vehicle.max_decel * cfg.dt * np.arange(cfg.horizon + 1), 0.0)
         controls = np.zeros((cfg.horizon, 2))
@@ -299,7 +342,9 @@ class RdaPlanner:
         states = rollout(self._trajectory, state.vector, controls)
         self._applied = np.zeros(2)
         self._memory = None
-        command = Command(max(state.speed - cfg.vehicle.max_decel * cfg.control_period, 0.0), 0.0)
+        last = self.last_command.linear if self.last_command is not None and status is TickStatus.BRAKE else np.inf
+        start = min(state.speed, last)
+        command = Command(max(start - cfg.vehicle.max_decel * cfg.control_period, 0.0), 0.0)
         clearance = self._clearance(states, corners)[0] if corners is not None else float("inf")
         return PlanStep(command, self._plan(state, states, controls), status, reason, 0.0, 0,
                         0 if corners is None else corners.shape[1], clearance, False)
