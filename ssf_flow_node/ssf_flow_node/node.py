@@ -4,6 +4,7 @@ scan left (/ssf/prior), re-estimated for each mask hint; the flow on /ssf/flow a
 from __future__ import annotations
 
 import collections
+import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -19,6 +20,7 @@ from ssf_common.pointcloud import decode_cloud_or_none
 from ssf_common.records import EgoMotion, PriorSource, SceneFlow
 from ssf_common.temporal_prior import carry_prior
 from ssf_common.worker import LatestWorker
+from ssf_flow_node.core.base import get_ready
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 
 SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
@@ -52,9 +54,12 @@ class FlowNode(Node):
         self.config = self.declare_config(FlowConfig, defaults=WHOLE_SCAN)
         device = self.declare_parameter("device", "cpu").value
         report_period = self.declare_parameter("report_period_s", 5.0).value
+        self.prior_wait_s = float(self.declare_parameter("prior_wait_s", 0.0).value)  # see wait_for_prior
         self.estimator = make_estimator(config=self.config, device=device)
         self.scans: collections.deque[Scan] = collections.deque(maxlen=SCAN_HISTORY)
         self.priors: collections.OrderedDict[int, PriorSource] = collections.OrderedDict()  # by the stamp they came from
+        self.prior_came = threading.Condition()  # the worker waits on it for a prior on its way
+        self.answered: int | None = None  # the stamp of the newest scan whose flow went out: its prior is on its way
         self.gap_ns: int | None = None  # the shortest time between consecutive scans seen: the sweep period
         self.ego_pub = self.create_publisher("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, QOS_DEFAULT)
         self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
@@ -77,7 +82,9 @@ class FlowNode(Node):
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
-            self.priors.clear()
+            with self.prior_came:
+                self.priors.clear()
+                self.answered = None
         if self.scans and self._consecutive(self.scans[-1], scan):
             self.worker.submit("scan", FlowJob(self.scans[-1], scan, None, 0))
         self.scans.append(scan)
@@ -99,9 +106,11 @@ class FlowNode(Node):
         except MessageError as err:
             self.get_logger().warning(f"dropped a message on {topics.PRIOR}: {err}")
             return
-        self.priors[source.stamp_ns] = source
-        while len(self.priors) > PRIOR_HISTORY:
-            self.priors.popitem(last=False)
+        with self.prior_came:
+            self.priors[source.stamp_ns] = source
+            while len(self.priors) > PRIOR_HISTORY:
+                self.priors.popitem(last=False)
+            self.prior_came.notify_all()
 
     def temporal_prior(self, scan: Scan) -> np.ndarray | None:
         """M^(0) of a scan: the segmentation of the scan right before it, carried onto it (None: none has come)."""
@@ -109,11 +118,20 @@ class FlowNode(Node):
         before = next((earlier for earlier, later in zip(scans, scans[1:]) if later.stamp_ns == scan.stamp_ns), None)
         if before is None or self.gap_ns is None or scan.stamp_ns - before.stamp_ns > 1.5 * self.gap_ns:
             return None  # the first scan of a sequence, or one after a lost scan: nothing points onto it
-        source = self.priors.get(before.stamp_ns)
+        source = self.wait_for_prior(before.stamp_ns)
         if source is None:
             self.stats.count("pairs_without_their_prior")  # the scan before was not finished in time
             return None
         return carry_prior(source, scan.xyz)
+
+    def wait_for_prior(self, stamp_ns: int) -> PriorSource | None:
+        """The prior the scan at `stamp_ns` left; where its flow went out and its answer is still on its way, waited
+        for at most prior_wait_s (in real time the chain answers a scan a little after the next pair begins: the pair's
+        work that needs no mask is done first, and the prior usually comes meanwhile)."""
+        with self.prior_came:
+            if stamp_ns not in self.priors and self.answered == stamp_ns and self.prior_wait_s > 0:
+                self.prior_came.wait_for(lambda: stamp_ns in self.priors, timeout=self.prior_wait_s)
+            return self.priors.get(stamp_ns)
 
     def on_mask_hint(self, msg: Any) -> None:
         """Re-estimate the flow of the scan the hint refers to, conditioned on its mask."""
@@ -138,6 +156,8 @@ class FlowNode(Node):
 
     def _estimate(self, _kind: str, job: FlowJob) -> None:
         start = time.perf_counter()
+        if job.iteration == 0:  # the work that needs no mask first: meanwhile the scan before may finish
+            get_ready(self.estimator, job.scan.xyz, job.next_scan.xyz)
         mask = self.temporal_prior(job.scan) if job.iteration == 0 else job.mask
         result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
@@ -146,6 +166,9 @@ class FlowNode(Node):
         self.ego_pub.publish(ego_motion_to_msg(ego))  # first: it is small, and the flow's readers wait for it
         self.flow_pub.publish(scene_flow_to_cloud(SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz,
                                                             result.flow, job.iteration, mask, ego)))
+        if job.iteration == 0:
+            with self.prior_came:
+                self.answered = job.scan.stamp_ns
 
     def _report(self) -> None:
         if not self._compute_ms:

@@ -4,7 +4,6 @@ from one KD-tree pair search) / HDBSCAN (scikit-learn) where a density clusterin
 
 from __future__ import annotations
 
-from itertools import chain
 from typing import NamedTuple
 
 import numpy as np
@@ -58,12 +57,14 @@ def spacing_components(points: np.ndarray, cell: float, reach: float, min_link: 
     spacing = angular_spacing(xyz, sample, seed) if spacing is None else spacing
     link = np.clip(reach * spacing * np.linalg.norm(xyz, axis=1), min_link, max_link)
     _, first, inverse = np.unique(grid_cells(xyz, cell)[0], return_index=True, return_inverse=True)
-    cells = xyz[first]
-    near = cKDTree(cells).query_ball_point(cells, link[first], return_sorted=False)
-    lengths = np.fromiter(map(len, near), np.int64, len(near))
-    rows = np.repeat(np.arange(cells.shape[0]), lengths)
-    cols = np.fromiter(chain.from_iterable(near), np.int64, int(lengths.sum()))
-    graph = coo_matrix((np.ones(rows.size, dtype=np.int8), (rows, cols)), shape=(cells.shape[0], cells.shape[0]))
+    cells, reach_of = xyz[first], link[first]
+    # each point links the points within its own link length: a pair is linked when it is within the longer of
+    # the two (one KD-tree pair search at the longest, then the pairs beyond both lengths dropped)
+    pairs = cKDTree(cells).query_pairs(float(reach_of.max()), output_type="ndarray")
+    gaps = np.linalg.norm(cells[pairs[:, 0]] - cells[pairs[:, 1]], axis=1)
+    linked = pairs[gaps <= np.maximum(reach_of[pairs[:, 0]], reach_of[pairs[:, 1]])]
+    graph = coo_matrix((np.ones(len(linked), dtype=np.int8), (linked[:, 0], linked[:, 1])),
+                       shape=(cells.shape[0], cells.shape[0]))
     count, component = connected_components(graph, directed=False)
     return Clustering(component[inverse.reshape(-1)], int(count))
 

@@ -32,6 +32,14 @@ class FlowEstimator(Protocol):
         ...
 
 
+def get_ready(estimator: FlowEstimator, pc1: np.ndarray, pc2: np.ndarray) -> None:
+    """Do the work on a pair that does not need its mask (an estimator that keeps such work has `get_ready`), so that
+    the mask, when it comes a little later, finds it done."""
+    ready = getattr(estimator, "get_ready", None)
+    if ready is not None:
+        ready(pc1, pc2)
+
+
 class PreparedPair(NamedTuple):
     """Validated scans, the points sampled from each and the mask on the sampled points of scan t."""
 

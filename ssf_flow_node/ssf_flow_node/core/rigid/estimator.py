@@ -80,6 +80,10 @@ class RigidFlowEstimator:
         state.result = finish(pair, moved - points1, ego, self.preprocess, still)
         return state.result
 
+    def get_ready(self, pc1: np.ndarray, pc2: np.ndarray) -> None:
+        """The pair's work that needs no mask (samples, ground split, surfaces, normals), done now and kept."""
+        self.pair_state(pc1, pc2)
+
     def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
         """The cached work on this pair of scans (the fusion loop asks for the same pair again), or a fresh one."""
         key = fingerprint(pc1, pc2)
