@@ -57,13 +57,14 @@ def run_bench_command(args: argparse.Namespace) -> int:
     config = build(PlannerConfig, read_yaml(args.config) if args.config else {}, parse_overrides(args.param, "-p"),
                    source=str(args.config or "-p"))
     rows = []
-    print("| obstacles | K | tick ms median | p95 | max | fallbacks | rounds |", flush=True)
-    print("| --- | --- | --- | --- | --- | --- | --- |", flush=True)
+    print("| obstacles | K | tick ms median | p95 | max | CPU ms median | fallbacks | rounds |", flush=True)
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |", flush=True)
     for count in counts:
         row = run_bench(config, count, args.ticks, args.seed)
         rows.append(row)
         print(f"| {row.obstacles} | {row.max_obstacles} | {row.solve_ms_median:.1f} | {row.solve_ms_p95:.1f} | "
-              f"{row.solve_ms_max:.1f} | {row.fallbacks} ({100 * row.fallback_rate:.2f} %) | {row.rounds_mean:.2f} |",
+              f"{row.solve_ms_max:.1f} | {row.cpu_ms_median:.1f} | {row.fallbacks} ({100 * row.fallback_rate:.2f} %) | "
+              f"{row.rounds_mean:.2f} |",
               flush=True)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     print(f"peak_rss_mb {peak:.0f}, QP solver {config.solver.qp}, horizon {config.horizon} x {config.dt:g} s",
