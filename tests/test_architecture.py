@@ -10,7 +10,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 NODE_PACKAGES = ("sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_odom_node", "ssf_planner_node")
-ABOVE_COMMON = NODE_PACKAGES + ("ssf_eval",)
+ABOVE_COMMON = NODE_PACKAGES + ("ssf_eval", "ssf_bringup")
 CORE_LIBRARIES = {"numpy", "scipy", "torch", "sklearn", "open3d", "casadi", "pydantic", "small_gicp"}
 CORE_COMMON = ("ssf_common.config", "ssf_common.errors", "ssf_common.geometry", "ssf_common.dataset", "ssf_common.records",
                "ssf_common.checkpoints", "ssf_common.interrupts",  # interrupts: a training loop stops cleanly
@@ -38,7 +38,7 @@ def top(name: str) -> str:
 
 
 def test_the_tree_has_the_packages_it_should():
-    for package in ("ssf_common", "ssf_eval") + NODE_PACKAGES:
+    for package in ("ssf_common", "ssf_eval", "ssf_bringup") + NODE_PACKAGES:
         assert modules_of(package), package
 
 
@@ -46,7 +46,7 @@ def test_the_tree_has_the_packages_it_should():
 def test_no_node_package_imports_another(package):
     others = set(NODE_PACKAGES) - {package}
     for path in modules_of(package):
-        crossing = sorted({name for name in imports_of(path) if top(name) in others | {"ssf_eval"}})
+        crossing = sorted({name for name in imports_of(path) if top(name) in others | {"ssf_eval", "ssf_bringup"}})
         assert not crossing, f"{path.relative_to(ROOT)} imports {crossing}"
 
 
@@ -57,6 +57,19 @@ def test_ssf_common_names_no_package_above_it():
         text = path.read_text()
         named = [package for package in ABOVE_COMMON if f"'{package}." in text or f'"{package}.' in text]
         assert not named, f"{path.relative_to(ROOT)} names {named} in a string"
+
+
+def test_only_the_application_imports_the_bringup_package():
+    for package in ("ssf_common", "ssf_eval") + NODE_PACKAGES:
+        for path in modules_of(package):
+            bringup = sorted({name for name in imports_of(path) if top(name) == "ssf_bringup"})
+            assert not bringup, f"{path.relative_to(ROOT)} imports {bringup}"
+
+
+def test_the_common_library_holds_no_application():
+    application = ("cli", "commands", "demo", "launch", "bench_graph", "bench_faults", "graphs")
+    left = [name for name in application if any((ROOT / "ssf_common" / "ssf_common").glob(f"{name}*"))]
+    assert not left, f"ssf_common holds {left}: the application lives in ssf_bringup"
 
 
 @pytest.mark.parametrize("package", NODE_PACKAGES[1:])
@@ -79,7 +92,7 @@ def test_simulator_imports_no_perception():
 
 
 def test_ssf_help_lists_every_command(capsys):
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     with pytest.raises(SystemExit) as exit_code:
         main(["--help"])

@@ -8,7 +8,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 from sim_bridge.scenario import overrides_from_pairs
 from ssf_common.checks import require_finite, require_seed
 from ssf_common.errors import ConfigError
@@ -116,7 +116,7 @@ def _sim_node(args: argparse.Namespace) -> int:
     from ssf_common.middleware import run
 
     load_scenario(args.scenario, overrides_from_pairs(args.set))  # a bad scenario is a CLI error, before any node starts
-    from ssf_common.launch import param_text
+    from ssf_common.config import param_text
 
     parameters: dict[str, object] = {
         "scenario": args.scenario,

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 from ssf_eval.sources import add_pair_source_options
 from ssf_flow_node.cli import ALL_ESTIMATORS, add_estimator_options
 

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 ALL_METHODS = ("points", "flow", "ssf", "kiss-icp")  # the default rows
 KNOWN_METHODS = (*ALL_METHODS, "ssf+twist")  # and ssf with the vehicle's measured motion (wheel speed, gyro)

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 STRESS_SCENARIOS = ("stress_junction", "stress_queue", "stress_crossing", "stress_parked", "stress_far")
 

@@ -22,11 +22,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ssf_bringup.bench_graph import Probe, bench_graph_spec, node_parameters
+from ssf_bringup.launch import GraphSpec, Launcher
 from ssf_common import messages, topics
-from ssf_common.bench_graph import Probe, bench_graph_spec, node_parameters
 from ssf_common.diagnostics import Level, read_levels
 from ssf_common.errors import ConfigError
-from ssf_common.launch import GraphSpec, Launcher
 
 ONSET_LIMIT_S = 0.3  # the braking contract: onset at most this long after the last fresh input (simulated time)
 DECELERATION = 6.0  # m/s^2: how the planner brakes (its vehicle.max_decel, the simulated car's limit too)
@@ -544,7 +544,7 @@ TABLE_HEAD = ("| case | speed at fault (m/s) | onset after last fresh input (s) 
 
 def bench_command(args: argparse.Namespace) -> int:
     """ssf bench faults."""
-    from ssf_common.demo import check_scenario
+    from ssf_bringup.demo import check_scenario
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable, check_writable_dir
 
