@@ -14,9 +14,8 @@ import numpy as np
 from ssf_common import messages, topics
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import ego_motion_to_msg, mask_from_cloud, prior_from_cloud, scene_flow_to_cloud
-from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
-from ssf_common.pointcloud import decode_cloud_or_none
+from ssf_common.pointcloud import decode_cloud
 from ssf_common.records import EgoMotion, PriorSource, SceneFlow
 from ssf_common.temporal_prior import carry_prior
 from ssf_common.worker import LatestWorker
@@ -75,7 +74,7 @@ class FlowNode(Node):
 
     def on_scan(self, msg: Any) -> None:
         """Remember the scan and ask for the flow of the previous one towards it."""
-        decoded = decode_cloud_or_none(msg, self.get_logger(), topics.LIDAR_POINTS)
+        decoded = self.decoded(decode_cloud, msg, topics.LIDAR_POINTS)
         if decoded is None:
             return
         scan = Scan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
@@ -101,10 +100,8 @@ class FlowNode(Node):
 
     def on_prior(self, msg: Any) -> None:
         """Keep what a finished scan left for the next scan's temporal prior."""
-        try:
-            source = prior_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.PRIOR}: {err}")
+        source = self.decoded(prior_from_cloud, msg, topics.PRIOR)
+        if source is None:
             return
         with self.prior_came:
             self.priors[source.stamp_ns] = source
@@ -140,10 +137,8 @@ class FlowNode(Node):
         if pair is None:
             self.get_logger().warning(f"mask hint for stamp {stamp} matches no recent scan pair; dropped")
             return
-        try:
-            hint = mask_from_cloud(msg, len(pair[0].xyz))
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.MASK_HINT}: {err}")
+        hint = self.decoded(mask_from_cloud, msg, topics.MASK_HINT, len(pair[0].xyz))
+        if hint is None:
             return
         self.worker.submit("hint", FlowJob(pair[0], pair[1], hint.dynamic_prob, hint.iteration))
 

@@ -19,7 +19,7 @@ from ssf_common.config import Section
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, odometry_to_msg, odometry_transform_msg,
                                     scene_flow_from_cloud, semantic_flow_from_cloud)
-from ssf_common.errors import ConfigError, MessageError, SsfError
+from ssf_common.errors import ConfigError, SsfError
 from ssf_common.geometry.kinematics import commanded_motion, forward_speed, measured_motion
 from ssf_common.geometry.se3 import invert
 from ssf_common.matching import ExactMatcher
@@ -142,11 +142,9 @@ class OdomNode(Node):
 
     def on_semantic_flow(self, msg: Any) -> None:
         """Queue one scan's converged flow and segmentation."""
-        try:
-            result = semantic_flow_from_cloud(msg)
-        except (MessageError, SsfError) as err:
-            self.get_logger().warning(f"dropped a message on {topics.SEMANTIC_FLOW}: {err}; the pose keeps its "
-                                      "constant-velocity prediction")
+        result = self.decoded(semantic_flow_from_cloud, msg, topics.SEMANTIC_FLOW, errors=(SsfError,),
+                              consequence="; the pose keeps its constant-velocity prediction")
+        if result is None:
             return
         self.sensor_frame = result.frame_id
         self.matcher.add_main((result.stamp_ns, result.iterations - 1), OdomInput(
@@ -154,10 +152,8 @@ class OdomNode(Node):
 
     def on_flow(self, msg: Any) -> None:
         """Keep a flow until the mask of its scan arrives."""
-        try:
-            flow = scene_flow_from_cloud(msg)
-        except (MessageError, SsfError) as err:
-            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+        flow = self.decoded(scene_flow_from_cloud, msg, topics.FLOW, errors=(SsfError,))
+        if flow is None:
             return
         self.flows[flow.stamp_ns] = flow
         while len(self.flows) > PENDING_FLOWS:
@@ -170,10 +166,8 @@ class OdomNode(Node):
         if flow is None:
             self.get_logger().warning(f"mask for stamp {stamp} matches no recent flow; dropped")
             return
-        try:
-            mask = mask_from_cloud(msg, len(flow.points))
-        except (MessageError, SsfError) as err:
-            self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
+        mask = self.decoded(mask_from_cloud, msg, topics.MASK, len(flow.points), errors=(SsfError,))
+        if mask is None:
             return
         self.sensor_frame = flow.frame_id
         self.matcher.add_main((flow.stamp_ns, flow.iteration), OdomInput(flow.stamp_ns, flow.points, flow.flow,
@@ -181,10 +175,8 @@ class OdomNode(Node):
 
     def on_ego_motion(self, msg: Any) -> None:
         """Match the flow estimator's ego motion with the scan it belongs to."""
-        try:
-            ego = ego_motion_from_msg(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is None:
             return
         self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 

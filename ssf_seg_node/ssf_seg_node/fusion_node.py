@@ -18,7 +18,6 @@ from ssf_common.config import Section
 from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, mask_to_cloud, obstacles_to_msg,
                                     prior_to_cloud, scene_flow_from_cloud, semantic_flow_to_cloud)
 from ssf_common.diagnostics import StageStats, advertise
-from ssf_common.errors import MessageError
 from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.markers import MarkerSet
 from ssf_common.matching import ExactMatcher
@@ -67,10 +66,8 @@ class FusionNode(Node):
 
     def on_flow(self, msg: Any) -> None:
         """Match S^(i) of the scan in progress with its ego motion."""
-        try:
-            flow = scene_flow_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+        flow = self.decoded(scene_flow_from_cloud, msg, topics.FLOW)
+        if flow is None:
             return
         if self.sequence.restarted(flow.stamp_ns):
             self.get_logger().info("flow stamps jumped back: the stream restarted, a new sequence begins")
@@ -80,10 +77,8 @@ class FusionNode(Node):
 
     def on_ego_motion(self, msg: Any) -> None:
         """Match an ego motion with its flow."""
-        try:
-            ego = ego_motion_from_msg(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is None:
             return
         self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 
@@ -94,10 +89,8 @@ class FusionNode(Node):
 
     def on_mask(self, msg: Any) -> None:
         """Decide on the segmentation of S^(i): another iteration, or the scan's answer."""
-        try:
-            mask = mask_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
+        mask = self.decoded(mask_from_cloud, msg, topics.MASK)
+        if mask is None:
             return
         started = time.perf_counter()
         decision = self.loop.on_mask(mask, time.monotonic())
