@@ -17,6 +17,7 @@ from ssf_common.conversions import ego_motion_to_msg, mask_from_cloud, prior_fro
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
 from ssf_common.pointcloud import decode_cloud
 from ssf_common.records import EgoMotion, PriorSource, SceneFlow
+from ssf_common.stamps import SensorPeriod
 from ssf_common.temporal_prior import carry_prior
 from ssf_common.worker import LatestWorker
 from ssf_flow_node.core.base import get_ready
@@ -59,7 +60,7 @@ class FlowNode(Node):
         self.priors: collections.OrderedDict[int, PriorSource] = collections.OrderedDict()  # by the stamp they came from
         self.prior_came = threading.Condition()  # the worker waits on it for a prior on its way
         self.answered: int | None = None  # the stamp of the newest scan whose flow went out: its prior is on its way
-        self.gap_ns: int | None = None  # the shortest time between consecutive scans seen: the sweep period
+        self.period = SensorPeriod()  # the shortest time between consecutive scans seen: the sweep period
         self.ego_pub = self.create_publisher("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, QOS_DEFAULT)
         self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
         self.worker = LatestWorker(self._estimate, ("hint", "scan"), self.get_logger(), "flow")
@@ -91,9 +92,7 @@ class FlowNode(Node):
     def _consecutive(self, previous: Scan, scan: Scan) -> bool:
         """Whether two scans are consecutive sweeps: a flow across a lost scan would cover twice the time every stage
         after this one assumes (velocities, odometry), so such a pair is skipped and counted."""
-        gap = scan.stamp_ns - previous.stamp_ns
-        self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
-        if gap <= 1.5 * self.gap_ns:
+        if self.period.consecutive(scan.stamp_ns - previous.stamp_ns):
             return True
         self.stats.count("pairs_skipped_after_a_lost_scan")
         return False
@@ -113,7 +112,7 @@ class FlowNode(Node):
         """M^(0) of a scan: the segmentation of the scan right before it, carried onto it (None: none has come)."""
         scans = list(self.scans)  # the worker's snapshot of what the subscriptions append
         before = next((earlier for earlier, later in zip(scans, scans[1:]) if later.stamp_ns == scan.stamp_ns), None)
-        if before is None or self.gap_ns is None or scan.stamp_ns - before.stamp_ns > 1.5 * self.gap_ns:
+        if before is None or self.period.spans_lost_scan(scan.stamp_ns - before.stamp_ns):
             return None  # the first scan of a sequence, or one after a lost scan: nothing points onto it
         source = self.wait_for_prior(before.stamp_ns)
         if source is None:

@@ -26,15 +26,13 @@ from ssf_common.matching import ExactMatcher
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
 from ssf_common.records import EgoMotion, OdometryEstimate
-from ssf_common.stamps import StampSequence
+from ssf_common.stamps import SensorPeriod, StampSequence
 from ssf_common.worker import LatestWorker
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_odometry
 
 PENDING_FLOWS = 8  # flows kept while their mask is on the way (input: flow_mask)
 COMMANDS_KEPT = 600  # velocity commands kept for the motion prior: a minute at 10 Hz, far longer than any gap
 TWISTS_KEPT = 6000  # measured twists kept: a minute at 100 Hz
-PERIOD_CONFIRMATIONS = 3  # the shortest gap between answered scans is the sensor's period once seen this often ...
-PERIOD_JITTER = 0.05  # ... within this share of it (a driver's stamps jitter)
 
 
 class OdomNodeConfig(Section):
@@ -118,8 +116,7 @@ class OdomNode(Node):
         advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker), inputs=(
             (topics.SEMANTIC_FLOW,) if self.wiring.input == "semantic_flow" else (topics.FLOW, topics.MASK)))
         self._last_stamp: int | None = None
-        self.period_ns: int | None = None  # the sensor's period, once learnt (see learn_period)
-        self._shortest_gap: tuple[int, int] | None = None  # the shortest time between two scans yet, and how often
+        self.period = SensorPeriod()  # the sensor's period, learnt from the answered scans' stamps
         self._published_ns: int | None = None  # the stamp of the last /odom
         self.sequence = StampSequence()
         self.create_timer(self.wiring.map_period_s, self._publish_map)
@@ -260,7 +257,7 @@ class OdomNode(Node):
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stats.record(self._compute_ms[-1], "steps")
         if self._last_stamp is not None:
-            self.learn_period(frame.stamp_ns - self._last_stamp)
+            self.period.learn(frame.stamp_ns - self._last_stamp)
         self._last_stamp = frame.stamp_ns
         estimate = to_base(step, self.mount, self.wiring.odom_frame, self.wiring.base_frame)
         self.speed = float(estimate.twist[0]) if step.next_motion is None else forward_speed(
@@ -276,25 +273,13 @@ class OdomNode(Node):
             self.path_pub.publish(messages.msg_type("nav_msgs/msg/Path")(  # a drive: milliseconds a scan for nobody)
                 header=messages.header(step.stamp_ns, self.wiring.odom_frame), poses=list(self.path)))
 
-    def learn_period(self, gap_ns: int) -> None:
-        """The sensor's period: the shortest time between two answered scans, once it came PERIOD_CONFIRMATIONS times
-        (within PERIOD_JITTER): a loaded graph answers scans seconds apart at first, and later only some of them."""
-        shortest, seen = self._shortest_gap or (gap_ns, 0)
-        if gap_ns < (1.0 - PERIOD_JITTER) * shortest:
-            shortest, seen = gap_ns, 0
-        if gap_ns <= (1.0 + PERIOD_JITTER) * shortest:
-            shortest, seen = min(shortest, gap_ns), seen + 1
-        self._shortest_gap = (shortest, seen)
-        if seen >= PERIOD_CONFIRMATIONS:
-            self.period_ns = shortest
-
     def newest(self, estimate: OdometryEstimate, step: OdomStep) -> OdometryEstimate:
         """What /odom says: with pose_at next_scan, the pose of the scan the flow reaches (`Odometry.next_pose`: the
         scan's refined pose moved on by its static flow's motion), stamped one sensor period later; the scan's own
         before the period is learnt, without a flow, or with pose_at scan."""
-        if self.wiring.pose_at != "next_scan" or step.next_motion is None or self.period_ns is None:
+        if self.wiring.pose_at != "next_scan" or step.next_motion is None or self.period.period_ns is None:
             return estimate
-        return dataclasses.replace(estimate, stamp_ns=step.stamp_ns + self.period_ns,
+        return dataclasses.replace(estimate, stamp_ns=step.stamp_ns + self.period.period_ns,
                                    pose=self.mount @ self.odometry.next_pose() @ invert(self.mount))
 
     def _publish_map(self) -> None:

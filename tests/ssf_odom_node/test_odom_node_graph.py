@@ -157,9 +157,9 @@ def test_odom_is_the_newest_scans_pose_once_the_period_is_learnt(pose_at):
         stamps = [odometry_from_msg(msg).stamp_ns // PERIOD_NS for msg in sent]
         assert stamps == ([0, 2, 3, 4, 6, 7] if pose_at == "next_scan" else [0, 2, 3, 4, 5, 6])
         assert odometry_from_msg(sent[-1]).position[0] == pytest.approx(stamps[-1] * STEP, abs=0.05)
-        assert node.period_ns == PERIOD_NS
-        node.learn_period(PERIOD_NS + 2_000_000)  # a driver's jitter does not unlearn it
-        assert node.period_ns == PERIOD_NS
+        assert node.period.period_ns == PERIOD_NS
+        node.period.learn(PERIOD_NS + 2_000_000)  # a driver's jitter does not unlearn it
+        assert node.period.period_ns == PERIOD_NS
     finally:
         node.destroy_node()
 
