@@ -28,7 +28,7 @@ PRIOR_HISTORY = 4  # temporal priors kept until the pair of the scan after their
 
 
 @dataclass(frozen=True)
-class Scan:
+class ReceivedScan:
     """One received scan: its stamp, frame and finite points."""
 
     stamp_ns: int
@@ -40,8 +40,8 @@ class Scan:
 class FlowJob:
     """Flow of scan t towards scan t+1, optionally conditioned on a mask, answering one iteration."""
 
-    scan: Scan
-    next_scan: Scan
+    scan: ReceivedScan
+    next_scan: ReceivedScan
     mask: np.ndarray | None  # a mask hint; None: the temporal prior, when the scan before left one
     iteration: int
 
@@ -56,7 +56,7 @@ class FlowNode(Node):
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.prior_wait_s = float(self.declare_parameter("prior_wait_s", 0.0).value)  # see wait_for_prior
         self.estimator = make_estimator(config=self.config, device=device)
-        self.scans: collections.deque[Scan] = collections.deque(maxlen=SCAN_HISTORY)
+        self.scans: collections.deque[ReceivedScan] = collections.deque(maxlen=SCAN_HISTORY)
         self.priors: collections.OrderedDict[int, PriorSource] = collections.OrderedDict()  # by the stamp they came from
         self.prior_came = threading.Condition()  # the worker waits on it for a prior on its way
         self.answered: int | None = None  # the stamp of the newest scan whose flow went out: its prior is on its way
@@ -78,7 +78,7 @@ class FlowNode(Node):
         decoded = self.decoded(decode_cloud, msg, topics.LIDAR_POINTS)
         if decoded is None:
             return
-        scan = Scan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
+        scan = ReceivedScan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
@@ -89,7 +89,7 @@ class FlowNode(Node):
             self.worker.submit("scan", FlowJob(self.scans[-1], scan, None, 0))
         self.scans.append(scan)
 
-    def _consecutive(self, previous: Scan, scan: Scan) -> bool:
+    def _consecutive(self, previous: ReceivedScan, scan: ReceivedScan) -> bool:
         """Whether two scans are consecutive sweeps: a flow across a lost scan would cover twice the time every stage
         after this one assumes (velocities, odometry), so such a pair is skipped and counted."""
         if self.period.consecutive(scan.stamp_ns - previous.stamp_ns):
@@ -108,7 +108,7 @@ class FlowNode(Node):
                 self.priors.popitem(last=False)
             self.prior_came.notify_all()
 
-    def temporal_prior(self, scan: Scan) -> np.ndarray | None:
+    def temporal_prior(self, scan: ReceivedScan) -> np.ndarray | None:
         """M^(0) of a scan: the segmentation of the scan right before it, carried onto it (None: none has come)."""
         scans = list(self.scans)  # the worker's snapshot of what the subscriptions append
         before = next((earlier for earlier, later in zip(scans, scans[1:]) if later.stamp_ns == scan.stamp_ns), None)
@@ -141,7 +141,7 @@ class FlowNode(Node):
             return
         self.worker.submit("hint", FlowJob(pair[0], pair[1], hint.dynamic_prob, hint.iteration))
 
-    def _pair_of(self, stamp_ns: int) -> tuple[Scan, Scan] | None:
+    def _pair_of(self, stamp_ns: int) -> tuple[ReceivedScan, ReceivedScan] | None:
         scans = list(self.scans)
         for scan, next_scan in zip(scans, scans[1:]):
             if scan.stamp_ns == stamp_ns:

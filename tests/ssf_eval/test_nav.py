@@ -15,7 +15,7 @@ import pytest
 from ssf_common.errors import ConfigError
 from ssf_common.records import ObstacleKind
 
-from ssf_eval.nav.perception import Observation
+from ssf_eval.nav.observation import Observation
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
 from sim_bridge.agents import AgentKind
 from ssf_eval.nav.loop import (PERCEPTION_NAMES, ClosedLoop, DelayLine, MovingTime, TrialOutcome, TrialRecord, TrialSpec,

@@ -18,23 +18,7 @@ from typing import Protocol, TextIO
 
 from ssf_common.errors import ConfigError, DataError
 from ssf_eval.nav.loop import TrialRecord, TrialSpec, run_trial
-from ssf_eval.nav.repeatable import pool_worker, ray_attempt
-
-
-@dataclass(frozen=True)
-class TrialFailure:
-    """A trial that raised instead of finishing: not logged, so a resumed campaign runs it again."""
-
-    key: str
-    error: str
-
-
-def attempt(spec: TrialSpec, trial: Callable[[TrialSpec], TrialRecord] = run_trial) -> TrialRecord | TrialFailure:
-    """Run one trial; an exception becomes a TrialFailure instead of ending the campaign."""
-    try:
-        return trial(spec)
-    except Exception as err:  # noqa: BLE001 - one broken trial must not lose the others
-        return TrialFailure(spec.key, f"{type(err).__name__}: {err}")
+from ssf_eval.nav.repeatable import TrialFailure, attempt, pool_worker, ray_attempt
 
 
 def campaign_specs(perceptions: list[str], agents: list[int], trials: int, seed: int = 100,

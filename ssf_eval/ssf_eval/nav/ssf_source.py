@@ -13,7 +13,7 @@ import numpy as np
 from ssf_common.config import build
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
-from ssf_eval.nav.perception import ODOM_FRAME, Observation
+from ssf_eval.nav.observation import ODOM_FRAME, Observation
 from ssf_eval.pipeline import PerceptionChain, PerceptionConfig, ScanPerception
 from ssf_flow_node.core.estimator import WHOLE_SCAN
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry

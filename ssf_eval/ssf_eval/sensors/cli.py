@@ -13,7 +13,7 @@ STRESS_SCENARIOS = ("stress_junction", "stress_queue", "stress_crossing", "stres
 
 def register(groups: CommandGroups) -> None:
     """Add `ssf eval sensors`."""
-    from sim_bridge.cli import add_protocol_options
+    from sim_bridge.options import add_protocol_options
     from sim_bridge.sensors import sensor_names
     from ssf_eval.seg.cli import add_perception_options
 

@@ -61,7 +61,7 @@ class Traffic:
                          yaws=np.zeros(count), velocities=np.c_[self.vx, self.vy, np.zeros(count)])
 
 
-MAX_SLOTS = 50  # the most obstacles a problem takes (ObstacleConfig.max_obstacles' bound)
+MAX_SLOTS = 50  # the most obstacles a problem takes (AvoidanceConfig.max_obstacles' bound)
 
 
 def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> BenchRow:
