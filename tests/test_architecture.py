@@ -87,6 +87,15 @@ def test_ssf_common_names_no_package_above_it():
         assert not named, f"{path.relative_to(ROOT)} names {named} in a string"
 
 
+def test_no_module_is_named_like_a_folder_beside_its_package():
+    """`python -m PKG.cli` from the workspace root sees PKG/launch/ (the launch files) as PKG.launch: a module of that
+    name would not import there."""
+    for package in ALL_PACKAGES:
+        folders = {path.name for path in (ROOT / package).iterdir() if path.is_dir() and path.name != package}
+        inside = {path.stem for path in (ROOT / package / package).iterdir() if path.suffix == ".py" or path.is_dir()}
+        assert not folders & inside, f"{package}/{package} has modules named like the folders {sorted(folders & inside)}"
+
+
 def test_only_the_application_imports_the_bringup_package():
     for package in ("ssf_common", "ssf_eval") + NODE_PACKAGES:
         for path in modules_of(package):

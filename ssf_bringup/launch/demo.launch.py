@@ -7,7 +7,7 @@ from launch import LaunchDescription
 from launch.actions import DeclareLaunchArgument, OpaqueFunction
 from launch.substitutions import LaunchConfiguration
 
-from ssf_bringup.launch import load_graph
+from ssf_bringup.launcher import load_graph
 from ssf_bringup.ros_launch import launch_actions
 
 

@@ -23,7 +23,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ssf_bringup.bench_graph import Probe, bench_graph_spec, node_parameters
-from ssf_bringup.launch import GraphSpec, Launcher
+from ssf_bringup.launcher import GraphSpec, Launcher
 from ssf_common import messages, topics
 from ssf_common.diagnostics import Level, read_levels
 from ssf_common.errors import ConfigError

@@ -20,7 +20,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ssf_bringup.demo import in_real_time
-from ssf_bringup.launch import GraphSpec, Launcher, load_graph
+from ssf_bringup.launcher import GraphSpec, Launcher, load_graph
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import parse_override
 from ssf_common.diagnostics import read_status

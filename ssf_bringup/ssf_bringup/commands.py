@@ -70,8 +70,7 @@ def _register_graph_commands(groups: CommandGroups) -> None:
 
 
 def _launch(args: argparse.Namespace) -> int:
-    from ssf_bringup.launch import Launcher, load_graph
-    from ssf_bringup.launch import with_viewer
+    from ssf_bringup.launcher import Launcher, load_graph, with_viewer
     from ssf_common.config import parse_overrides
     from ssf_common.viewer.command import viewer_config
 

@@ -13,7 +13,7 @@ from importlib import metadata, resources
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from ssf_bringup.launch import GraphSpec, Launcher, NodeSpec, load_graph, with_viewer
+from ssf_bringup.launcher import GraphSpec, Launcher, NodeSpec, load_graph, with_viewer
 from ssf_common import config as config_lib
 from ssf_common.checks import require_finite, require_seed
 from ssf_common.errors import ConfigError, DataError, SsfError

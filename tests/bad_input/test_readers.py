@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from bad_input.hostile import SUITE, finite_within, mutations, one_line, refused_or, yaml_documents
-from ssf_bringup.launch import load_graph
+from ssf_bringup.launcher import load_graph
 from ssf_common import config, messages, pointcloud, scans
 from ssf_common.arrays import read_array
 from ssf_common.bags import reader as bag_reader

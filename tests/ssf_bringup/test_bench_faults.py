@@ -13,7 +13,7 @@ from ssf_bringup.bench_graph import Probe
 from ssf_common import topics
 from ssf_bringup.bench_faults import (Arrival, FaultCase, FaultRecord, StateSample, Timing, TruthSample, campaign,
                                      case_graph, evaluate, format_row, run_case, select, verdict)
-from ssf_bringup.launch import load_graph
+from ssf_bringup.launcher import load_graph
 from ssf_common.diagnostics import Level
 from ssf_common.errors import ConfigError
 

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ssf_bringup.launch import command_line, load_graph
+from ssf_bringup.launcher import command_line, load_graph
 from ssf_common.middleware import Node
 from ssf_common.errors import ConfigError
 from support import wait_until
@@ -43,7 +43,7 @@ def start_node(executable: str, *ros_args: str) -> subprocess.Popen:
 
 
 def load_node_spec(executable: str):
-    from ssf_bringup.launch import NodeSpec
+    from ssf_bringup.launcher import NodeSpec
 
     return NodeSpec(executable=executable)
 

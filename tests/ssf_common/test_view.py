@@ -197,7 +197,7 @@ def test_a_busy_port_is_refused_before_a_graph_starts(capsys, tmp_path):
 
 
 def test_foxglove_adds_one_viewer_process_to_a_graph():
-    from ssf_bringup.launch import GraphSpec, NodeSpec, command_line, with_viewer
+    from ssf_bringup.launcher import GraphSpec, NodeSpec, command_line, with_viewer
     from ssf_common.viewer.server import ViewerConfig
 
     graph = GraphSpec(nodes=[NodeSpec(executable="sim_bridge")])
