@@ -200,7 +200,7 @@ def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dic
     return graph.model_copy(update={"nodes": nodes})
 
 
-def node_parameters(items: list[str]) -> dict[str, dict[str, Any]]:
+def per_node_parameters(items: list[str]) -> dict[str, dict[str, Any]]:
     """Per-node settings from `NODE:NAME:=VALUE` items, e.g. ssf_fusion_node:fusion.max_iterations:=1."""
     settings: dict[str, dict[str, Any]] = {}
     for item in items:
@@ -400,7 +400,7 @@ def bench_command(args: argparse.Namespace) -> int:
         check_writable(args.json, "result file")
     if args.episodes < 0:
         raise ConfigError(f"--episodes must be 0 (back to back until the duration is over) or more, got {args.episodes}")
-    parameters = node_parameters(args.param)
+    parameters = per_node_parameters(args.param)
     bench_graph_spec(args.scenario, args.episodes, parameters)  # unknown node names fail here, before any process
     print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
           file=sys.stderr)

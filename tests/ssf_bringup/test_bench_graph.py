@@ -91,20 +91,20 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
 
 
 def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
-    from ssf_bringup.bench_graph import node_parameters
+    from ssf_bringup.bench_graph import per_node_parameters
     from ssf_bringup.demo import REALTIME_LOOP_TIMEOUT_S
     from ssf_common.errors import ConfigError
 
     default = next(node for node in bench_graph_spec("urban_200", 1).nodes if node.name == "ssf_fusion_node")
     assert "fusion.max_iterations" not in default.parameters  # one iteration: the default, lockstep or real time
-    settings = node_parameters(["ssf_fusion_node:fusion.max_iterations:=3", "ssf_flow_node:estimator:=ego"])
+    settings = per_node_parameters(["ssf_fusion_node:fusion.max_iterations:=3", "ssf_flow_node:estimator:=ego"])
     assert settings == {"ssf_fusion_node": {"fusion.max_iterations": 3}, "ssf_flow_node": {"estimator": "ego"}}
     fusion = next(node for node in bench_graph_spec("urban_200", 1, settings).nodes if node.name == "ssf_fusion_node")
     assert fusion.parameters["fusion.max_iterations"] == 3 and fusion.parameters["timeout_s"] == REALTIME_LOOP_TIMEOUT_S == 0.15
     with pytest.raises(ConfigError, match="no node of that name"):
-        bench_graph_spec("urban_200", 1, node_parameters(["recorder:x:=1"]))
+        bench_graph_spec("urban_200", 1, per_node_parameters(["recorder:x:=1"]))
     with pytest.raises(ConfigError, match="NODE:NAME:=VALUE"):
-        node_parameters(["fusion.max_iterations:=1"])
+        per_node_parameters(["fusion.max_iterations:=1"])
 
 
 def test_a_drive_that_ended_early_is_said_with_its_outcome():

@@ -139,7 +139,7 @@ class RayRunner:
 
 
 @dataclass
-class Progress:
+class CampaignProgress:
     """One stderr line per finished trial: count, elapsed, ETA, and the running success rate of its cell."""
 
     total: int
@@ -179,7 +179,7 @@ def run_campaign(specs: list[TrialSpec], log: TrialLog, runner: Runner, out: Tex
     todo = [spec for spec in specs if spec.key not in finished]
     if finished:
         print(f"resuming {log.path}: {len(specs) - len(todo)} of {len(specs)} trials already done", file=out)
-    progress = Progress(len(todo), out)
+    progress = CampaignProgress(len(todo), out)
     progress.seed_cells(finished[spec.key] for spec in specs if spec.key in finished)
     for record in runner.map(todo):
         if isinstance(record, TrialFailure):
