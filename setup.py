@@ -10,6 +10,7 @@ WORKSPACE_PACKAGES = (
     "ssf_planner_node",
     "sim_bridge",
     "ssf_eval",
+    "ssf_bringup",
 )
 
 

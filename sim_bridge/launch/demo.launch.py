@@ -1,33 +1,13 @@
-"""ros2 launch sim_bridge demo.launch.py scenario:=urban_100 — the closed loop of `ssf demo` on ROS 2 Jazzy."""
+"""ros2 launch sim_bridge demo.launch.py — the name it always had; the graph itself lives in ssf_bringup."""
 
-from importlib import resources
 from pathlib import Path
 
+from ament_index_python.packages import get_package_share_directory
 from launch import LaunchDescription
-from launch.actions import DeclareLaunchArgument, OpaqueFunction
-from launch.substitutions import LaunchConfiguration
-
-from ssf_common.launch import load_graph
-from ssf_common.ros_launch import launch_actions
-
-
-def _graph(context):
-    graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
-    scenario = LaunchConfiguration("scenario").perform(context)
-    duration = float(LaunchConfiguration("duration").perform(context))
-    nodes = [
-        node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "duration_s": duration}})
-        if node.executable == "sim_bridge" else node
-        for node in graph.nodes
-    ]
-    graph = graph.model_copy(update={"nodes": nodes})
-    return launch_actions(graph, LaunchConfiguration("record_dir").perform(context) or None)
+from launch.actions import IncludeLaunchDescription
+from launch.launch_description_sources import PythonLaunchDescriptionSource
 
 
 def generate_launch_description():
-    return LaunchDescription([
-        DeclareLaunchArgument("scenario", default_value="urban_100", description="sim_bridge scenario"),
-        DeclareLaunchArgument("duration", default_value="60.0", description="seconds of simulated driving"),
-        DeclareLaunchArgument("record_dir", default_value="", description="ros2 bag output folder"),
-        OpaqueFunction(function=_graph),
-    ])
+    bringup = Path(get_package_share_directory("ssf_bringup")) / "launch" / "demo.launch.py"
+    return LaunchDescription([IncludeLaunchDescription(PythonLaunchDescriptionSource(str(bringup)))])

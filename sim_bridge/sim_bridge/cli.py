@@ -8,7 +8,8 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from sim_bridge.options import add_protocol_options, protocol_from_args
+from ssf_common.command_groups import CommandGroups
 from sim_bridge.scenario import overrides_from_pairs
 from ssf_common.checks import require_finite, require_seed
 from ssf_common.errors import ConfigError
@@ -116,7 +117,7 @@ def _sim_node(args: argparse.Namespace) -> int:
     from ssf_common.middleware import run
 
     load_scenario(args.scenario, overrides_from_pairs(args.set))  # a bad scenario is a CLI error, before any node starts
-    from ssf_common.launch import param_text
+    from ssf_common.config import param_text
 
     parameters: dict[str, object] = {
         "scenario": args.scenario,
@@ -182,23 +183,6 @@ def _sim_offline(args: argparse.Namespace) -> int:
 
         render_episode(sim, args.render)
     return 0
-
-
-def add_protocol_options(parser: argparse.ArgumentParser) -> None:
-    """--protocol and the fields it may override (shared by export, eval and bench)."""
-    parser.add_argument("--protocol", choices=("paper", "raw", "whole"), default="paper",
-                        help="paper: ground removed, 35 m range, 8192 points (the scene-flow benchmarks' KITTI "
-                        "protocol); raw: whole scans, ground included, 8192 points; whole: every point of every scan, "
-                        "as the nodes see them (default paper)")
-    parser.add_argument("--points", type=int, help="points per scan (default 8192)")
-    parser.add_argument("--sampling", choices=("random", "voxel", "fps"), help="how the points are picked (default random)")
-
-
-def protocol_from_args(args: argparse.Namespace):
-    """The pair protocol the flags name."""
-    from sim_bridge.dataset.export import pair_protocol
-
-    return pair_protocol(args.protocol, points=args.points, sampling=args.sampling)
 
 
 def _export(args: argparse.Namespace) -> int:

@@ -14,6 +14,7 @@ from sim_bridge.agents import AgentKind, AgentStates
 from ssf_common import messages
 from ssf_common import pose_msgs
 from ssf_common.conversions import obstacles_to_msg, plan_to_msg
+from ssf_common.markers import CUBE, CYLINDER, Rgba, marker
 from ssf_common.records import ObstacleKind, Obstacles, Plan
 from ssf_common.pointcloud import xyz_to_cloud
 
@@ -21,6 +22,10 @@ WORLD_FRAME = "world"
 BASE_FRAME = "base_link"
 LIDAR_FRAME = "lidar"
 ODOM_FRAME = "odom"
+
+VEHICLE_COLOUR = Rgba(0.2, 0.5, 0.9, 0.8)
+PEDESTRIAN_COLOUR = Rgba(0.95, 0.6, 0.1, 0.9)
+AGENT_LIFETIME_S = 0.3
 
 _OBSTACLE_KIND = {AgentKind.VEHICLE: ObstacleKind.VEHICLE, AgentKind.PEDESTRIAN: ObstacleKind.PEDESTRIAN}
 
@@ -104,42 +109,17 @@ def agent_obstacles(agents: AgentStates, stamp_ns: int) -> Obstacles:
 
 def markers(agents: AgentStates, stamp_ns: int) -> Any:
     """visualization_msgs/MarkerArray: a cube per vehicle, a cylinder per pedestrian (Foxglove, RViz)."""
-    marker = messages.msg_type("visualization_msgs/msg/Marker")
-    color = messages.msg_type("std_msgs/msg/ColorRGBA")
-    duration = messages.msg_type("builtin_interfaces/msg/Duration")
     header = messages.header(stamp_ns, WORLD_FRAME)
     items = []
     for i in range(len(agents)):
         is_vehicle = int(agents.kind[i]) == AgentKind.VEHICLE
         centre = agents.position[i].copy()
         centre[2] += agents.size[i, 2] / 2
-        items.append(
-            marker(
-                header=header,
-                ns="vehicles" if is_vehicle else "pedestrians",
-                id=int(agents.ids[i]),
-                type=1 if is_vehicle else 3,  # CUBE, CYLINDER
-                action=0,
-                pose=messages.msg_type("geometry_msgs/msg/Pose")(
-                    position=pose_msgs.point_msg(centre), orientation=pose_msgs.yaw_quaternion_msg(float(agents.yaw[i]))
-                ),
-                scale=pose_msgs.vector3_msg(agents.size[i]),
-                color=color(r=0.2, g=0.5, b=0.9, a=0.8) if is_vehicle else color(r=0.95, g=0.6, b=0.1, a=0.9),
-                lifetime=duration(sec=0, nanosec=300_000_000),
-                frame_locked=False,
-                points=[],
-                colors=[],
-                texture_resource="",
-                texture=messages.msg_type("sensor_msgs/msg/CompressedImage")(
-                    header=messages.header(0, ""), format="", data=np.zeros(0, np.uint8)
-                ),
-                uv_coordinates=[],
-                text="",
-                mesh_resource="",
-                mesh_file=messages.msg_type("visualization_msgs/msg/MeshFile")(filename="", data=np.zeros(0, np.uint8)),
-                mesh_use_embedded_materials=False,
-            )
-        )
+        pose = messages.msg_type("geometry_msgs/msg/Pose")(
+            position=pose_msgs.point_msg(centre), orientation=pose_msgs.yaw_quaternion_msg(float(agents.yaw[i])))
+        items.append(marker(header, "vehicles" if is_vehicle else "pedestrians", int(agents.ids[i]),
+                            CUBE if is_vehicle else CYLINDER, pose=pose, scale=agents.size[i],
+                            colour=VEHICLE_COLOUR if is_vehicle else PEDESTRIAN_COLOUR, lifetime_s=AGENT_LIFETIME_S))
     return messages.msg_type("visualization_msgs/msg/MarkerArray")(markers=items)
 
 

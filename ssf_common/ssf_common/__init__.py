@@ -1,1 +1,1 @@
-"""SSF-PAN common layer: middleware, messages, point clouds, bags, config and the `ssf` command line."""
+"""SSF-PAN common library: middleware, messages, point clouds, bags, config, geometry (the application is ssf_bringup)."""

@@ -7,6 +7,7 @@ failure is one ConfigError line that names the file (or flag) and the place.
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 from typing import Any, TypeVar
@@ -16,6 +17,8 @@ from pydantic import BaseModel, ConfigDict, ValidationError
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from ssf_common.errors import ConfigError
+
+_PLAIN_TEXT = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-./~+= "
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
 
@@ -205,6 +208,24 @@ def parse_override(item: str, flag: str = "-p") -> tuple[str, Any]:
     if len(text) > MAX_VALUE_CHARS:
         raise ConfigError(f"{flag} {name}: value longer than {MAX_VALUE_CHARS} characters")
     return name, load_yaml_text(text, f"{flag} {name}")
+
+
+def param_text(value: Any) -> str:
+    """The YAML text that reads back as `value` (what `-p NAME:=TEXT` carries)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        text = repr(value)
+        mantissa, _, exponent = text.partition("e")
+        return f"{mantissa}.0e{exponent}" if exponent and "." not in mantissa else text
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(param_text(item) for item in value) + "]"
+    if isinstance(value, str):
+        plain = value and value == value.strip() and all(char in _PLAIN_TEXT for char in value)
+        if plain and load_yaml_text(value, "value") == value:
+            return value
+        return json.dumps(value)
+    return str(value)
 
 
 def parse_overrides(items: list[str], flag: str = "-p") -> dict[str, Any]:

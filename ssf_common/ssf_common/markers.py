@@ -18,7 +18,7 @@ from ssf_common.geometry.se3 import make_pose
 from ssf_common.records import ObstacleKind, Obstacles, Plan
 
 # visualization_msgs/Marker types and actions
-ARROW, CUBE, LINE_STRIP, SPHERE_LIST = 0, 1, 4, 7
+ARROW, CUBE, CYLINDER, LINE_STRIP, SPHERE_LIST = 0, 1, 3, 4, 7
 ADD, DELETE = 0, 2
 
 OBSTACLES_NS = "obstacles"
@@ -48,16 +48,18 @@ ARROW_COLOUR = Rgba(1.0, 0.9, 0.1, 1.0)
 PLAN_COLOUR = Rgba(0.1, 0.9, 0.35, 1.0)
 
 
-def marker(header: Any, ns: str, marker_id: int, kind: int, *, pose: np.ndarray | None = None,
+def marker(header: Any, ns: str, marker_id: int, kind: int, *, pose: np.ndarray | Any | None = None,
            scale: Sequence[float] = (1.0, 1.0, 1.0), colour: Rgba = Rgba(1.0, 1.0, 1.0),
            points: np.ndarray | None = None, lifetime_s: float = DEFAULT_LIFETIME_S, action: int = ADD) -> Any:
-    """One visualization_msgs/Marker with every field ROS 2 Jazzy defines (pose: 4x4, identity when None)."""
+    """One visualization_msgs/Marker with every field ROS 2 Jazzy defines (pose: 4x4, a geometry_msgs/Pose as it is,
+    identity when None)."""
     make = messages.msg_type
     sec, nanosec = divmod(int(round(lifetime_s * 1e9)), 1_000_000_000)
     point_list = [pose_msgs.point_msg(p) for p in np.asarray(points if points is not None else np.zeros((0, 3)))]
     return make("visualization_msgs/msg/Marker")(
         header=header, ns=ns, id=int(marker_id), type=kind, action=action,
-        pose=pose_msgs.pose_msg(np.eye(4) if pose is None else pose),
+        pose=pose if pose is not None and not isinstance(pose, np.ndarray) else pose_msgs.pose_msg(
+            np.eye(4) if pose is None else pose),
         scale=pose_msgs.vector3_msg(np.asarray(scale, dtype=np.float64)),
         color=make("std_msgs/msg/ColorRGBA")(r=colour.r, g=colour.g, b=colour.b, a=colour.a),
         lifetime=make("builtin_interfaces/msg/Duration")(sec=sec, nanosec=nanosec),

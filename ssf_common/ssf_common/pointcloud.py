@@ -7,7 +7,7 @@ row padding (row_step > width * point_step) are all read as zero-copy views of t
 
 from __future__ import annotations
 
-from typing import Any, Literal, NamedTuple, Protocol, overload
+from typing import Any, Literal, NamedTuple, overload
 
 import numpy as np
 
@@ -34,12 +34,6 @@ class DecodedCloud(NamedTuple):
     # (scans.point_time: velodyne `time`, ouster `t`, Hesai/nebula `timestamp`/`time_stamp`, Livox `offset_time`);
     # None: no field, an instant sweep (all 0), or an unusable one
     time_problem: str | None = None  # one line: why a time field the cloud has gives no time
-
-
-class WarningLogger(Protocol):
-    """Anything with a `warning(str)` method (middleware or rclpy logger, logging.Logger)."""
-
-    def warning(self, message: str) -> Any: ...
 
 
 def cloud_dtype(msg: Any) -> np.dtype:
@@ -193,16 +187,6 @@ def _with_time(msg: Any, decoded: DecodedCloud, every_point: bool) -> DecodedClo
     stamp_ns = messages.stamp_ns(header.stamp) if header is not None else None
     timing = point_time(decoded.points, decoded.xyz, stamp_ns, None if every_point else decoded.indices)
     return decoded._replace(time=timing.time, time_problem=timing.problem)
-
-
-def decode_cloud_or_none(msg: Any, logger: WarningLogger, topic: str = "") -> DecodedCloud | None:
-    """decode_cloud for subscribers: log one line and return None for a bad cloud."""
-    try:
-        return decode_cloud(msg)
-    except MessageError as err:
-        where = f" on {topic}" if topic else ""
-        logger.warning(f"dropped a message{where}: {err}")
-        return None
 
 
 def array_to_cloud(arr: np.ndarray, header: Any, *, is_dense: bool | None = None) -> Any:

@@ -3,7 +3,7 @@ flow cached for training the segmentation networks)."""
 
 from __future__ import annotations
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 
 def register(groups: CommandGroups) -> None:

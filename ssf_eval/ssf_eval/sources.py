@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from sim_bridge.cli import add_protocol_options, protocol_from_args
+from sim_bridge.options import add_protocol_options, protocol_from_args
 from sim_bridge.dataset.export import PROTOCOLS, PairProtocol, generate_pairs
 from sim_bridge.scenario import Scenario, load_scenario, overrides_from_pairs
 from sim_bridge.sensors import sensor_names

@@ -8,7 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 
 def register(groups: CommandGroups) -> None:
@@ -32,8 +32,8 @@ def run_seg_flow(args: argparse.Namespace) -> int:
     """ssf train seg-flow."""
     from ssf_common.dataset.estimates import flow_estimate_path, write_flow_estimate
     from ssf_common.dataset.pairs import pair_files, read_pair
-    from ssf_flow_node.cli import flow_config
     from ssf_flow_node.core.estimator import make_estimator
+    from ssf_flow_node.options import flow_config
 
     estimator = make_estimator(args.estimator, flow_config(args), device=args.device)
     files = pair_files(args.data)

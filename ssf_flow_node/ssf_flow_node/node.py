@@ -14,10 +14,10 @@ import numpy as np
 from ssf_common import messages, topics
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import ego_motion_to_msg, mask_from_cloud, prior_from_cloud, scene_flow_to_cloud
-from ssf_common.errors import MessageError
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
-from ssf_common.pointcloud import decode_cloud_or_none
+from ssf_common.pointcloud import decode_cloud
 from ssf_common.records import EgoMotion, PriorSource, SceneFlow
+from ssf_common.stamps import SensorPeriod
 from ssf_common.temporal_prior import carry_prior
 from ssf_common.worker import LatestWorker
 from ssf_flow_node.core.base import get_ready
@@ -28,7 +28,7 @@ PRIOR_HISTORY = 4  # temporal priors kept until the pair of the scan after their
 
 
 @dataclass(frozen=True)
-class Scan:
+class ReceivedScan:
     """One received scan: its stamp, frame and finite points."""
 
     stamp_ns: int
@@ -40,8 +40,8 @@ class Scan:
 class FlowJob:
     """Flow of scan t towards scan t+1, optionally conditioned on a mask, answering one iteration."""
 
-    scan: Scan
-    next_scan: Scan
+    scan: ReceivedScan
+    next_scan: ReceivedScan
     mask: np.ndarray | None  # a mask hint; None: the temporal prior, when the scan before left one
     iteration: int
 
@@ -56,11 +56,11 @@ class FlowNode(Node):
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.prior_wait_s = float(self.declare_parameter("prior_wait_s", 0.0).value)  # see wait_for_prior
         self.estimator = make_estimator(config=self.config, device=device)
-        self.scans: collections.deque[Scan] = collections.deque(maxlen=SCAN_HISTORY)
+        self.scans: collections.deque[ReceivedScan] = collections.deque(maxlen=SCAN_HISTORY)
         self.priors: collections.OrderedDict[int, PriorSource] = collections.OrderedDict()  # by the stamp they came from
         self.prior_came = threading.Condition()  # the worker waits on it for a prior on its way
         self.answered: int | None = None  # the stamp of the newest scan whose flow went out: its prior is on its way
-        self.gap_ns: int | None = None  # the shortest time between consecutive scans seen: the sweep period
+        self.period = SensorPeriod()  # the shortest time between consecutive scans seen: the sweep period
         self.ego_pub = self.create_publisher("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, QOS_DEFAULT)
         self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
         self.worker = LatestWorker(self._estimate, ("hint", "scan"), self.get_logger(), "flow")
@@ -75,10 +75,10 @@ class FlowNode(Node):
 
     def on_scan(self, msg: Any) -> None:
         """Remember the scan and ask for the flow of the previous one towards it."""
-        decoded = decode_cloud_or_none(msg, self.get_logger(), topics.LIDAR_POINTS)
+        decoded = self.decoded(decode_cloud, msg, topics.LIDAR_POINTS)
         if decoded is None:
             return
-        scan = Scan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
+        scan = ReceivedScan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
@@ -89,22 +89,18 @@ class FlowNode(Node):
             self.worker.submit("scan", FlowJob(self.scans[-1], scan, None, 0))
         self.scans.append(scan)
 
-    def _consecutive(self, previous: Scan, scan: Scan) -> bool:
+    def _consecutive(self, previous: ReceivedScan, scan: ReceivedScan) -> bool:
         """Whether two scans are consecutive sweeps: a flow across a lost scan would cover twice the time every stage
         after this one assumes (velocities, odometry), so such a pair is skipped and counted."""
-        gap = scan.stamp_ns - previous.stamp_ns
-        self.gap_ns = gap if self.gap_ns is None else min(self.gap_ns, gap)
-        if gap <= 1.5 * self.gap_ns:
+        if self.period.consecutive(scan.stamp_ns - previous.stamp_ns):
             return True
         self.stats.count("pairs_skipped_after_a_lost_scan")
         return False
 
     def on_prior(self, msg: Any) -> None:
         """Keep what a finished scan left for the next scan's temporal prior."""
-        try:
-            source = prior_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.PRIOR}: {err}")
+        source = self.decoded(prior_from_cloud, msg, topics.PRIOR)
+        if source is None:
             return
         with self.prior_came:
             self.priors[source.stamp_ns] = source
@@ -112,11 +108,11 @@ class FlowNode(Node):
                 self.priors.popitem(last=False)
             self.prior_came.notify_all()
 
-    def temporal_prior(self, scan: Scan) -> np.ndarray | None:
+    def temporal_prior(self, scan: ReceivedScan) -> np.ndarray | None:
         """M^(0) of a scan: the segmentation of the scan right before it, carried onto it (None: none has come)."""
         scans = list(self.scans)  # the worker's snapshot of what the subscriptions append
         before = next((earlier for earlier, later in zip(scans, scans[1:]) if later.stamp_ns == scan.stamp_ns), None)
-        if before is None or self.gap_ns is None or scan.stamp_ns - before.stamp_ns > 1.5 * self.gap_ns:
+        if before is None or self.period.spans_lost_scan(scan.stamp_ns - before.stamp_ns):
             return None  # the first scan of a sequence, or one after a lost scan: nothing points onto it
         source = self.wait_for_prior(before.stamp_ns)
         if source is None:
@@ -140,14 +136,12 @@ class FlowNode(Node):
         if pair is None:
             self.get_logger().warning(f"mask hint for stamp {stamp} matches no recent scan pair; dropped")
             return
-        try:
-            hint = mask_from_cloud(msg, len(pair[0].xyz))
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.MASK_HINT}: {err}")
+        hint = self.decoded(mask_from_cloud, msg, topics.MASK_HINT, len(pair[0].xyz))
+        if hint is None:
             return
         self.worker.submit("hint", FlowJob(pair[0], pair[1], hint.dynamic_prob, hint.iteration))
 
-    def _pair_of(self, stamp_ns: int) -> tuple[Scan, Scan] | None:
+    def _pair_of(self, stamp_ns: int) -> tuple[ReceivedScan, ReceivedScan] | None:
         scans = list(self.scans)
         for scan, next_scan in zip(scans, scans[1:]):
             if scan.stamp_ns == stamp_ns:

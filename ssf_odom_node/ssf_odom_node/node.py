@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import collections
 import dataclasses
-import threading
 import time
 from typing import Any
 
@@ -19,22 +18,18 @@ from ssf_common.config import Section
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, odometry_to_msg, odometry_transform_msg,
                                     scene_flow_from_cloud, semantic_flow_from_cloud)
-from ssf_common.errors import ConfigError, MessageError, SsfError
-from ssf_common.geometry.kinematics import commanded_motion, forward_speed, measured_motion
-from ssf_common.geometry.se3 import invert
+from ssf_common.errors import ConfigError, SsfError
 from ssf_common.matching import ExactMatcher
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
-from ssf_common.records import EgoMotion, OdometryEstimate
-from ssf_common.stamps import StampSequence
+from ssf_common.records import EgoMotion
+from ssf_common.stamps import SensorPeriod, StampSequence
 from ssf_common.worker import LatestWorker
-from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomStep, make_odometry
+from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
+from ssf_odom_node.core.vehicle import (VehicleMotion, mount_matrix, next_scan_estimate, speed_ahead,
+                                        to_base)
 
 PENDING_FLOWS = 8  # flows kept while their mask is on the way (input: flow_mask)
-COMMANDS_KEPT = 600  # velocity commands kept for the motion prior: a minute at 10 Hz, far longer than any gap
-TWISTS_KEPT = 6000  # measured twists kept: a minute at 100 Hz
-PERIOD_CONFIRMATIONS = 3  # the shortest gap between answered scans is the sensor's period once seen this often ...
-PERIOD_JITTER = 0.05  # ... within this share of it (a driver's stamps jitter)
 
 
 class OdomNodeConfig(Section):
@@ -66,26 +61,6 @@ class OdomNodeConfig(Section):
     report_period_s: float = Field(5.0, gt=0.0)
 
 
-def mount_matrix(values: tuple[float, ...]) -> np.ndarray:
-    """4x4 base_link <- sensor of x y z roll pitch yaw."""
-    from scipy.spatial.transform import Rotation
-
-    matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_euler("xyz", values[3:]).as_matrix()
-    matrix[:3, 3] = values[:3]
-    return matrix
-
-
-def to_base(step: OdomStep, mount: np.ndarray, odom_frame: str, base_frame: str) -> OdometryEstimate:
-    """An odometry step of the sensor (first scan's sensor frame) as base_link in the odom frame (base_link at the
-    first scan): pose M P M^-1, covariance and twist rotated into base_link axes."""
-    rotation = np.kron(np.eye(2), mount[:3, :3])
-    angular = mount[:3, :3] @ step.twist[3:]
-    linear = mount[:3, :3] @ step.twist[:3] + np.cross(mount[:3, 3], angular)
-    return OdometryEstimate(step.stamp_ns, mount @ step.pose @ invert(mount), rotation @ step.covariance @ rotation.T,
-                            np.concatenate([linear, angular]), np.zeros((6, 6)), odom_frame, base_frame)
-
-
 class OdomNode(Node):
     """Converts semantic scene flow messages into odometry steps and publishes the pose, path and static map."""
 
@@ -102,10 +77,8 @@ class OdomNode(Node):
         self.sensor_frame = ""
         self.path: collections.deque[Any] = collections.deque(maxlen=self.wiring.path_length)
         self.flows: collections.OrderedDict[int, Any] = collections.OrderedDict()
-        self.commands: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=COMMANDS_KEPT)
-        self.twists: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=TWISTS_KEPT)
+        self.vehicle = VehicleMotion()  # the commands and measurements of the motion priors
         self.said_no_twist = False
-        self.commands_lock = threading.Lock()  # the worker reads what the subscriptions append
         self.speed = 0.0  # base_link's forward speed at the last scan (m/s): where the motion prior starts from
         self.odom_pub = self.create_publisher("nav_msgs/msg/Odometry", topics.ODOM, QOS_DEFAULT)
         self.tf_pub = self.create_publisher("tf2_msgs/msg/TFMessage", topics.TF, QOS_DEFAULT)
@@ -118,8 +91,7 @@ class OdomNode(Node):
         advertise(self, self.stats, refresh=worker_counts(self.stats, self.worker), inputs=(
             (topics.SEMANTIC_FLOW,) if self.wiring.input == "semantic_flow" else (topics.FLOW, topics.MASK)))
         self._last_stamp: int | None = None
-        self.period_ns: int | None = None  # the sensor's period, once learnt (see learn_period)
-        self._shortest_gap: tuple[int, int] | None = None  # the shortest time between two scans yet, and how often
+        self.period = SensorPeriod()  # the sensor's period, learnt from the answered scans' stamps
         self._published_ns: int | None = None  # the stamp of the last /odom
         self.sequence = StampSequence()
         self.create_timer(self.wiring.map_period_s, self._publish_map)
@@ -142,11 +114,9 @@ class OdomNode(Node):
 
     def on_semantic_flow(self, msg: Any) -> None:
         """Queue one scan's converged flow and segmentation."""
-        try:
-            result = semantic_flow_from_cloud(msg)
-        except (MessageError, SsfError) as err:
-            self.get_logger().warning(f"dropped a message on {topics.SEMANTIC_FLOW}: {err}; the pose keeps its "
-                                      "constant-velocity prediction")
+        result = self.decoded(semantic_flow_from_cloud, msg, topics.SEMANTIC_FLOW, errors=(SsfError,),
+                              consequence="; the pose keeps its constant-velocity prediction")
+        if result is None:
             return
         self.sensor_frame = result.frame_id
         self.matcher.add_main((result.stamp_ns, result.iterations - 1), OdomInput(
@@ -154,10 +124,8 @@ class OdomNode(Node):
 
     def on_flow(self, msg: Any) -> None:
         """Keep a flow until the mask of its scan arrives."""
-        try:
-            flow = scene_flow_from_cloud(msg)
-        except (MessageError, SsfError) as err:
-            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+        flow = self.decoded(scene_flow_from_cloud, msg, topics.FLOW, errors=(SsfError,))
+        if flow is None:
             return
         self.flows[flow.stamp_ns] = flow
         while len(self.flows) > PENDING_FLOWS:
@@ -170,10 +138,8 @@ class OdomNode(Node):
         if flow is None:
             self.get_logger().warning(f"mask for stamp {stamp} matches no recent flow; dropped")
             return
-        try:
-            mask = mask_from_cloud(msg, len(flow.points))
-        except (MessageError, SsfError) as err:
-            self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
+        mask = self.decoded(mask_from_cloud, msg, topics.MASK, len(flow.points), errors=(SsfError,))
+        if mask is None:
             return
         self.sensor_frame = flow.frame_id
         self.matcher.add_main((flow.stamp_ns, flow.iteration), OdomInput(flow.stamp_ns, flow.points, flow.flow,
@@ -181,10 +147,8 @@ class OdomNode(Node):
 
     def on_ego_motion(self, msg: Any) -> None:
         """Match the flow estimator's ego motion with the scan it belongs to."""
-        try:
-            ego = ego_motion_from_msg(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is None:
             return
         self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 
@@ -200,11 +164,7 @@ class OdomNode(Node):
         if not (np.isfinite(linear) and np.isfinite(angular)):
             self.get_logger().warning(f"dropped a command on {self.wiring.command_topic} that is not finite")
             return
-        now = self.get_clock().now_ns()
-        with self.commands_lock:
-            if self.commands and now < self.commands[-1][0]:  # the clock jumped back: a restarted stream
-                self.commands.clear()
-            self.commands.append((now, linear, angular))
+        self.vehicle.add_command(self.get_clock().now_ns(), linear, angular)
 
     def on_twist(self, msg: Any) -> None:
         """Remember one measurement of the vehicle's speed and yaw rate (over the time since the one before)."""
@@ -213,24 +173,15 @@ class OdomNode(Node):
         if not (np.isfinite(linear) and np.isfinite(angular)):
             self.get_logger().warning(f"dropped a measurement on {self.wiring.twist_topic} that is not finite")
             return
-        with self.commands_lock:
-            if self.twists and stamp <= self.twists[-1][0]:
-                if stamp == self.twists[-1][0]:
-                    return  # the same sample again
-                self.twists.clear()  # stamps went back: a restarted stream
-            self.twists.append((stamp, linear, angular))
+        self.vehicle.add_twist(stamp, linear, angular)
 
     def measured_prior(self, stamp_ns: int) -> np.ndarray | None:
         """The sensor's motion from the last scan to this one as the vehicle's measurements give it; None before the
         first scan, without measurements, or when they stopped."""
-        if self._last_stamp is None:
-            return None
-        with self.commands_lock:
-            twists = list(self.twists)
-        motion = measured_motion(twists, self._last_stamp, stamp_ns, self.mount)
-        if motion is None and self.wiring.twist_topic and not self.said_no_twist:
-            newest = (f"the newest measurement is {(twists[-1][0] - stamp_ns) * 1e-9:+.1f} s from it (stopped, or "
-                      "stamped by another clock)") if twists else "none has come"
+        motion, newest_ns = self.vehicle.measured(self._last_stamp, stamp_ns, self.mount)
+        if motion is None and self._last_stamp is not None and self.wiring.twist_topic and not self.said_no_twist:
+            newest = (f"the newest measurement is {(newest_ns - stamp_ns) * 1e-9:+.1f} s from it (stopped, or "
+                      "stamped by another clock)") if newest_ns is not None else "none has come"
             self.get_logger().warning(f"no measured motion on {self.wiring.twist_topic} for the scan at {stamp_ns}: "
                                       f"{newest}; the flow alone decides (said once)")
             self.said_no_twist = True
@@ -239,12 +190,8 @@ class OdomNode(Node):
     def motion_prior(self, stamp_ns: int) -> np.ndarray | None:
         """The sensor's motion from the last scan to this one (last scan's sensor frame <- this one's) as the
         commands sent in between drove the vehicle; None before the first scan or without commands."""
-        if self._last_stamp is None:
-            return None
-        with self.commands_lock:
-            commands = list(self.commands)
-        return commanded_motion(commands, self._last_stamp, stamp_ns, self.speed, self.wiring.max_accel,
-                                self.wiring.max_decel, self.mount)
+        return self.vehicle.commanded(self._last_stamp, stamp_ns, self.speed,
+                                      (self.wiring.max_accel, self.wiring.max_decel), self.mount)
 
     def on_tf(self, msg: Any) -> None:
         """Take the base_link -> sensor mount when /tf carries it."""
@@ -268,12 +215,12 @@ class OdomNode(Node):
         self._compute_ms.append((time.perf_counter() - started) * 1e3)
         self.stats.record(self._compute_ms[-1], "steps")
         if self._last_stamp is not None:
-            self.learn_period(frame.stamp_ns - self._last_stamp)
+            self.period.learn(frame.stamp_ns - self._last_stamp)
         self._last_stamp = frame.stamp_ns
         estimate = to_base(step, self.mount, self.wiring.odom_frame, self.wiring.base_frame)
-        self.speed = float(estimate.twist[0]) if step.next_motion is None else forward_speed(
-            invert(step.next_motion), self.config.scan_period, self.mount)  # the flow's: the speed at the scan itself
-        newest = self.newest(estimate, step)
+        self.speed = speed_ahead(step, self.config.scan_period, self.mount, without_flow=float(estimate.twist[0]))
+        newest = estimate if self.wiring.pose_at != "next_scan" else next_scan_estimate(
+            estimate, step, self.odometry.next_pose(), self.mount, self.period.period_ns)
         if self._published_ns is None or newest.stamp_ns > self._published_ns:  # a stamp already given (a shorter
             self._published_ns = newest.stamp_ns  # period learnt since) is not given again
             self.odom_pub.publish(odometry_to_msg(newest))
@@ -283,27 +230,6 @@ class OdomNode(Node):
         if self.path_pub.get_subscription_count():  # the whole path, for someone watching (thousands of poses late in
             self.path_pub.publish(messages.msg_type("nav_msgs/msg/Path")(  # a drive: milliseconds a scan for nobody)
                 header=messages.header(step.stamp_ns, self.wiring.odom_frame), poses=list(self.path)))
-
-    def learn_period(self, gap_ns: int) -> None:
-        """The sensor's period: the shortest time between two answered scans, once it came PERIOD_CONFIRMATIONS times
-        (within PERIOD_JITTER): a loaded graph answers scans seconds apart at first, and later only some of them."""
-        shortest, seen = self._shortest_gap or (gap_ns, 0)
-        if gap_ns < (1.0 - PERIOD_JITTER) * shortest:
-            shortest, seen = gap_ns, 0
-        if gap_ns <= (1.0 + PERIOD_JITTER) * shortest:
-            shortest, seen = min(shortest, gap_ns), seen + 1
-        self._shortest_gap = (shortest, seen)
-        if seen >= PERIOD_CONFIRMATIONS:
-            self.period_ns = shortest
-
-    def newest(self, estimate: OdometryEstimate, step: OdomStep) -> OdometryEstimate:
-        """What /odom says: with pose_at next_scan, the pose of the scan the flow reaches (`Odometry.next_pose`: the
-        scan's refined pose moved on by its static flow's motion), stamped one sensor period later; the scan's own
-        before the period is learnt, without a flow, or with pose_at scan."""
-        if self.wiring.pose_at != "next_scan" or step.next_motion is None or self.period_ns is None:
-            return estimate
-        return dataclasses.replace(estimate, stamp_ns=step.stamp_ns + self.period_ns,
-                                   pose=self.mount @ self.odometry.next_pose() @ invert(self.mount))
 
     def _publish_map(self) -> None:
         """The static map (odom frame) at a low rate."""

@@ -21,7 +21,7 @@ from ssf_common.conversions import obstacles_from_cdr, odometry_from_msg, plan_f
 from ssf_common.diagnostics import ConditionLog, Level, StageStats, advertise
 from ssf_common.errors import ConfigError, MessageError, SsfError
 from ssf_common.markers import MarkerSet
-from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, run
+from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, dropped_text, run
 from ssf_common.geometry.se3 import invert, yaw_matrix
 from ssf_common.records import Obstacles, OdometryEstimate
 from ssf_common.stamps import StampSequence
@@ -132,7 +132,7 @@ class PlannerNode(Node):
             problem = str(err)
         if problem:
             self.stats.count("obstacles_dropped_bad")
-            self.log.update("bad obstacles", True, f"dropped a message on {topics.OBSTACLES}: {problem}",
+            self.log.update("bad obstacles", True, dropped_text(topics.OBSTACLES, problem),
                             over=f"{topics.OBSTACLES} good again")
             return
         self.log.update("bad obstacles", False, over=f"{topics.OBSTACLES} good again")
@@ -148,10 +148,8 @@ class PlannerNode(Node):
 
     def on_odometry(self, msg: Any) -> None:
         """Plan from this pose with the newest obstacles; publish the command and the plan."""
-        try:
-            odometry = odometry_from_msg(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.ODOM}: {err}")
+        odometry = self.decoded(odometry_from_msg, msg, topics.ODOM)
+        if odometry is None:
             return
         if self.sequence.restarted(odometry.stamp_ns):
             self.get_logger().info("odometry stamps jumped back: the stream restarted; the commands sent and the anchor "

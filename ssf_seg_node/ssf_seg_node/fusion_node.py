@@ -18,8 +18,6 @@ from ssf_common.config import Section
 from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, mask_to_cloud, obstacles_to_msg,
                                     prior_to_cloud, scene_flow_from_cloud, semantic_flow_to_cloud)
 from ssf_common.diagnostics import StageStats, advertise
-from ssf_common.errors import MessageError
-from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.markers import MarkerSet
 from ssf_common.matching import ExactMatcher
 from ssf_common.middleware import QOS_DEFAULT, Node, run
@@ -27,7 +25,7 @@ from ssf_common.records import EgoMotion, SceneFlow
 from ssf_common.stamps import StampSequence
 from ssf_common.temporal_prior import prior_source
 from ssf_seg_node.core.fusion import Continue, DistributedLoop, Finish, FusionConfig, LoopStatus
-from ssf_seg_node.core.obstacles import ObstacleConfig, scan_obstacles
+from ssf_seg_node.core.obstacles import ObstacleConfig, result_obstacles
 
 
 class FusionNodeConfig(Section):
@@ -67,10 +65,8 @@ class FusionNode(Node):
 
     def on_flow(self, msg: Any) -> None:
         """Match S^(i) of the scan in progress with its ego motion."""
-        try:
-            flow = scene_flow_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+        flow = self.decoded(scene_flow_from_cloud, msg, topics.FLOW)
+        if flow is None:
             return
         if self.sequence.restarted(flow.stamp_ns):
             self.get_logger().info("flow stamps jumped back: the stream restarted, a new sequence begins")
@@ -80,10 +76,8 @@ class FusionNode(Node):
 
     def on_ego_motion(self, msg: Any) -> None:
         """Match an ego motion with its flow."""
-        try:
-            ego = ego_motion_from_msg(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is None:
             return
         self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 
@@ -94,10 +88,8 @@ class FusionNode(Node):
 
     def on_mask(self, msg: Any) -> None:
         """Decide on the segmentation of S^(i): another iteration, or the scan's answer."""
-        try:
-            mask = mask_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.MASK}: {err}")
+        mask = self.decoded(mask_from_cloud, msg, topics.MASK)
+        if mask is None:
             return
         started = time.perf_counter()
         decision = self.loop.on_mask(mask, time.monotonic())
@@ -119,15 +111,10 @@ class FusionNode(Node):
     def _publish_result(self, finish: Finish) -> None:
         result = finish.result
         self._publish_state(finish.status)
-        if result.ego is None:  # a flow whose ego motion never came (not from our flow node): fitted here, counted
+        if result.ego is None:  # a flow whose ego motion never came (not from our flow node): the core fits one
             self.stats.count("results_without_ego_motion")
-            ego = weighted_kabsch(result.points, result.points + result.flow, 1.0 - result.segmentation.dynamic_prob)
-            dt = self.config.dt
-        else:
-            ego, dt = result.ego.transform, result.ego.dt
         self.result_pub.publish(semantic_flow_to_cloud(result))  # first: the odometry works while the obstacles are made
-        obstacles = scan_obstacles(result.points, result.flow, result.segmentation, ego, dt, result.stamp_ns,
-                                   result.frame_id, self.config.obstacles).all()
+        obstacles = result_obstacles(result, self.config.obstacles, self.config.dt).all()
         self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # (they take less time than the odometry's step)
         radius = self.config.fusion.prior_radius  # last: the flow node needs it only when the next scan comes
         self.prior_pub.publish(prior_to_cloud(prior_source(result.stamp_ns, result.frame_id, result.points,

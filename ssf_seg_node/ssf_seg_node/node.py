@@ -14,7 +14,6 @@ import numpy as np
 from ssf_common import topics
 from ssf_common.conversions import ego_motion_from_msg, mask_to_cloud, scene_flow_from_cloud
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
-from ssf_common.errors import MessageError
 from ssf_common.matching import ExactMatcher
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.records import EgoMotion, MotionMask, SceneFlow
@@ -45,19 +44,15 @@ class SegNode(Node):
 
     def on_flow(self, msg: Any) -> None:
         """Match the flow with its ego motion."""
-        try:
-            flow = scene_flow_from_cloud(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.FLOW}: {err}")
+        flow = self.decoded(scene_flow_from_cloud, msg, topics.FLOW)
+        if flow is None:
             return
         self.matcher.add_main((flow.stamp_ns, flow.iteration), flow, time.monotonic())
 
     def on_ego_motion(self, msg: Any) -> None:
         """Match an ego motion with its flow."""
-        try:
-            ego = ego_motion_from_msg(msg)
-        except MessageError as err:
-            self.get_logger().warning(f"dropped a message on {topics.EGO_MOTION}: {err}")
+        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is None:
             return
         self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 

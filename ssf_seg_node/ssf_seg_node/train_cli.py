@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 
 def register(groups: CommandGroups) -> None:

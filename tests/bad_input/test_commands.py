@@ -2,7 +2,7 @@
 
 HOSTILE lists, per command, what a hostile user can hand it. The first test walks the real parser: a command
 added without an entry here fails the suite the day it is added. Commands run in this process through
-`ssf_common.cli.main`, so an escaping exception fails the test with its traceback.
+`ssf_bringup.cli.main`, so an escaping exception fails the test with its traceback.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from bad_input.hostile import (
     not_positive,
     unwritable_paths,
 )
+from ssf_bringup.cli import build_parser, main
 from ssf_common import scans
-from ssf_common.cli import build_parser, main
 
 Case = Callable[[st.DrawFn, Path], list[str]]
 
@@ -350,7 +350,7 @@ def test_as_a_process_bad_input_is_one_line_without_traceback(tmp_path, argv):
     (tmp_path / "binary.yaml").write_bytes(bytes(range(128, 256)))
     names = {"graph": graph_file(tmp_path), "bag": str(tmp_path / "no_bag"), "binary": str(tmp_path / "binary.yaml")}
     result = subprocess.run(
-        [sys.executable, "-P", "-m", "ssf_common.cli", *[arg.format(**names) for arg in argv]],
+        [sys.executable, "-P", "-m", "ssf_bringup.cli", *[arg.format(**names) for arg in argv]],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert result.returncode == 2, result.stderr

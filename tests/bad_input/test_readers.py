@@ -17,16 +17,16 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from bad_input.hostile import SUITE, finite_within, mutations, one_line, refused_or, yaml_documents
+from ssf_bringup.launcher import load_graph
 from ssf_common import config, messages, pointcloud, scans
 from ssf_common.arrays import read_array
 from ssf_common.bags import reader as bag_reader
 from ssf_common.bags.qos import parse_profiles
 from ssf_common.errors import SsfError
-from ssf_common.launch import load_graph
 from ssf_common.middleware.params import parse_ros_args, read_params_file
 
 SCENARIO = (Path(__file__).resolve().parents[2] / "sim_bridge" / "sim_bridge" / "scenarios" / "sparse_50.yaml").read_text()
-GRAPH = resources.files("ssf_common").joinpath("graphs/demo.yaml").read_text()
+GRAPH = resources.files("ssf_bringup").joinpath("graphs/demo.yaml").read_text()
 PARAMS = "/**:\n  ros__parameters:\n    rate: 5.0\nmy_node:\n  ros__parameters:\n    lidar: {rows: 32, frame: lidar}\n"
 FLOW_CONFIG = "preprocess:\n  points: 4096\n  max_range: 35.0\nrigid:\n  cluster_voxel: 0.5\n"
 

@@ -59,7 +59,7 @@ def test_replayed_scans_come_out_as_semantic_flow_obstacles_and_odometry(percept
         recorded = [odometry_from_msg(bag.decode(m)) for m in bag.messages(["/sim/ground_truth/odom"])]
         scans = bag.topics["/lidar/points"].message_count
     # slow enough that every scan is answered before the next (the nodes keep only the newest)
-    player = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "bag", "play", str(SAMPLE), "--rate", "0.15",
+    player = subprocess.run([sys.executable, "-P", "-m", "ssf_bringup.cli", "bag", "play", str(SAMPLE), "--rate", "0.15",
                              "--delay", "3", "--topics", "/lidar/points", "/tf"], capture_output=True, text=True, timeout=240)
     assert player.returncode == 0, player.stderr
     # (a scan arriving while the flow node is busy is dropped by design: on a loaded machine a few are)

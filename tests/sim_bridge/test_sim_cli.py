@@ -12,7 +12,7 @@ import pytest
 from sim_bridge.node import SimBridgeNode
 from sim_bridge.node import main as node_main
 from sim_bridge.simulator import Simulator, episode_summary
-from ssf_common.cli import main
+from ssf_bringup.cli import main
 from ssf_common.jsonio import write_json
 
 SHORT = ["-p", "route.waypoints:=[[0,0],[60,0]]", "-p", "ground.margin=30", "--set", "lidar.columns=256"]
@@ -106,7 +106,7 @@ def test_the_node_refuses_an_unwritable_summary_and_a_negative_seed_at_once():
 
 def test_sim_with_an_unwritable_summary_exits_at_once_in_node_mode(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "sim", "--scenario", "empty", "--json", "/proc/nope/x.json"],
+        [sys.executable, "-P", "-m", "ssf_bringup.cli", "sim", "--scenario", "empty", "--json", "/proc/nope/x.json"],
         capture_output=True, text=True, timeout=120,
     )  # fmt: skip
     assert result.returncode == 2 and "Traceback" not in result.stderr

@@ -41,7 +41,7 @@ def recording(tmp_path_factory) -> Path:
     }
     (folder / "graph.yaml").write_text(yaml.safe_dump(graph))
     result = subprocess.run(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "launch", str(folder / "graph.yaml")],
+        [sys.executable, "-P", "-m", "ssf_bringup.cli", "launch", str(folder / "graph.yaml")],
         capture_output=True, text=True, timeout=240,
     )
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]

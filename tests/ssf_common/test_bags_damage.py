@@ -27,7 +27,7 @@ T0 = 1_600_000_000_000_000_000
 def run_ssf(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     """The `ssf` command line in a child process."""
     return subprocess.run(
-        [sys.executable, "-m", "ssf_common.cli", *args], capture_output=True, text=True, timeout=timeout
+        [sys.executable, "-m", "ssf_bringup.cli", *args], capture_output=True, text=True, timeout=timeout
     )
 
 

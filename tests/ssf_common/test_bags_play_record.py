@@ -26,7 +26,7 @@ CLOCK_PERIOD_NS = 10_000_000  # `ssf bag play --clock` ticks at 100 Hz of bag ti
 
 def ssf_command(*args: str) -> list[str]:
     """argv of the `ssf` command line run by this interpreter."""
-    return [sys.executable, "-m", "ssf_common.cli", *args]
+    return [sys.executable, "-m", "ssf_bringup.cli", *args]
 
 
 def start_recorder(directory: Path, *arguments: str) -> subprocess.Popen:
@@ -150,7 +150,7 @@ def test_with_use_sim_time_the_recorder_logs_at_the_clock_and_thins_on_request(s
 
 
 def test_bad_recorder_flags_are_one_line(capsys, tmp_path):
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     assert main(["record", "-o", str(tmp_path / "bag"), "--every", "/chatter:0"]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()

@@ -123,7 +123,7 @@ def test_split_bag_merges_files_in_time_order(shared_data):
 def run_ssf(*args: str) -> subprocess.CompletedProcess:
     """The `ssf` command line in a child process."""
     return subprocess.run(
-        [sys.executable, "-m", "ssf_common.cli", *args], capture_output=True, text=True, timeout=60
+        [sys.executable, "-m", "ssf_bringup.cli", *args], capture_output=True, text=True, timeout=60
     )
 
 

@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ssf_bringup.cli import main
 from ssf_common import messages
 from ssf_common.bags.play import Player, PlayOptions
 from ssf_common.bags.reader import open_bag
 from ssf_common.bags.timeline import MAX_GAP_NS, judge
 from ssf_common.bags.writer import BagWriter
-from ssf_common.cli import main
 
 T0 = 1_650_000_000_000_000_000
 PERIOD_NS = 100_000_000

@@ -15,7 +15,7 @@ from ssf_common.geometry.labels import (label_extents, label_main_axes, label_me
                                          label_sums_of_rows, pick_per_label, ragged_arange)
 from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, greedy_farthest_indices, grid_cells, sample_indices,
-                                          voxel_indices)
+                                          voxel_indices, voxel_keys)
 from ssf_common.geometry.se3 import (compose, exp_twists, interpolate_poses, invert, make_pose, relative_pose, rigid_flow,
                                      rotation_angle, transform_points, yaw_of, yaw_translate)
 
@@ -400,3 +400,22 @@ def test_dbscan_gives_scikit_learn_s_labels(seed):
     found = dbscan(points, 0.5, 5)
     np.testing.assert_array_equal(found.labels, expected)
     assert found.count == expected.max() + 1 and (expected == -1).any()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_one_voxel_key_gives_the_codes_the_map_and_the_trails_had(dtype):
+    """Bit for bit the three encodings it replaced: the static map's voxels (3-D, clipped) and columns (2-D), the
+    footprint grid of the evaluation's trails (2-D, 31 bits)."""
+    rng = np.random.default_rng(3)
+    points = np.concatenate([rng.uniform(-300.0, 300.0, (4000, 3)), rng.integers(-40, 40, (500, 3)) * 0.25,
+                             [[1e7, -1e7, 0.0]]]).astype(dtype)
+    for voxel in (0.25, 0.5, 0.3, 1.0):
+        keys = np.floor(np.asarray(points, np.float64) / voxel).astype(np.int64) + (1 << 20)
+        clipped = np.clip(keys, 0, (1 << 21) - 1)
+        map_voxels = (clipped[:, 0] << 42) | (clipped[:, 1] << 21) | clipped[:, 2]
+        map_columns = (keys[:, 0] << 21) | keys[:, 1]
+        np.testing.assert_array_equal(voxel_keys(points, voxel, 21, clip=True), map_voxels)
+        np.testing.assert_array_equal(voxel_keys(points[:, :2], voxel, 21), map_columns)
+    trail = (np.floor(points[:, :2] / 0.25).astype(np.int64) + (1 << 30))
+    np.testing.assert_array_equal(voxel_keys(points[:, :2], 0.25, 31), (trail[:, 0] << 31) | trail[:, 1])
+

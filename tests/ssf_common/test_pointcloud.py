@@ -1,12 +1,14 @@
 """PointCloud2 <-> numpy round trips for real-world layouts, real scans, and each kind of malformed cloud."""
 
 import struct
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from ssf_common import messages, pointcloud, scans
 from ssf_common.errors import MessageError
+from ssf_common.middleware import Node
 
 HEADER = messages.header(1_673_400_472_138_016_708, "lidar_top")
 
@@ -292,11 +294,25 @@ class ListLogger:
 
 def test_subscriber_helper_logs_one_line_per_bad_cloud_and_keeps_going():
     logger = ListLogger()
-    results = [pointcloud.decode_cloud_or_none(corrupt(through_cdr(good_cloud())), logger, "/lidar/points")
+    node = SimpleNamespace(_logger=logger)  # Node.decoded needs only the node's logger
+    results = [Node.decoded(node, pointcloud.decode_cloud, corrupt(through_cdr(good_cloud())), "/lidar/points")
                for corrupt, _ in BAD_CLOUDS.values()]  # fmt: skip
     assert results == [None] * len(BAD_CLOUDS)
     assert len(logger.lines) == len(BAD_CLOUDS)
     assert all(line.startswith("dropped a message on /lidar/points: PointCloud2") for line in logger.lines)
-    decoded = pointcloud.decode_cloud_or_none(through_cdr(good_cloud()), logger)
+    decoded = Node.decoded(node, pointcloud.decode_cloud, through_cdr(good_cloud()), "/lidar/points")
     np.testing.assert_array_equal(decoded.xyz, np.arange(24, dtype=np.float32).reshape(8, 3))
     assert decoded.points["intensity"].tolist() == [1.0] * 8 and len(logger.lines) == len(BAD_CLOUDS)
+
+
+def test_one_drop_line_for_every_node_with_what_follows_and_other_errors_passing_through():
+    logger = ListLogger()
+    node = SimpleNamespace(_logger=logger)
+
+    def broken(_msg, size):
+        raise MessageError(f"mask of {size} points")
+
+    assert Node.decoded(node, broken, None, "/ssf/mask", 3, consequence="; the pose keeps going") is None
+    assert logger.lines == ["dropped a message on /ssf/mask: mask of 3 points; the pose keeps going"]
+    with pytest.raises(ValueError):
+        Node.decoded(node, lambda _msg: int("x"), None, "/ssf/mask")

@@ -306,7 +306,7 @@ def test_a_video_name_that_says_no_format_is_refused_first(tmp_path, name):
 
 
 def test_demo_refuses_a_video_it_cannot_write_before_starting(tmp_path, capsys):
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     assert main(["demo", "--out", str(tmp_path / "out"), "--video", str(tmp_path / "episode.avi")]) == 2
     (line,) = capsys.readouterr().err.strip().splitlines()
@@ -317,7 +317,7 @@ def test_demo_refuses_a_video_it_cannot_write_before_starting(tmp_path, capsys):
 def test_render_command_draws_any_recording_with_settings(recording, tmp_path, capsys):
     import json
 
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     assert main(["render", str(recording), "--video", str(tmp_path / "a.gif"), "-p", "stride:=3",
                  "-p", "size_px:=160"]) == 0

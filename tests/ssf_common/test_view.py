@@ -17,8 +17,8 @@ import psutil
 import pytest
 from websockets.sync.client import connect
 
+from ssf_bringup.cli import main
 from ssf_common import messages, topics
-from ssf_common.cli import main
 from ssf_common.pointcloud import cloud_to_array, xyz_to_cloud
 
 SUBPROTOCOL = "foxglove.sdk.v1"  # what the foxglove-sdk server speaks (the Foxglove app offers it)
@@ -28,7 +28,7 @@ URL = re.compile(r"on (ws://[0-9.]+:\d+)")
 
 
 def ssf(*args: str) -> list[str]:
-    return [sys.executable, "-P", "-m", "ssf_common.cli", *args]
+    return [sys.executable, "-P", "-m", "ssf_bringup.cli", *args]
 
 
 def server_url(process: subprocess.Popen, timeout_s: float = 60.0) -> str:
@@ -197,8 +197,7 @@ def test_a_busy_port_is_refused_before_a_graph_starts(capsys, tmp_path):
 
 
 def test_foxglove_adds_one_viewer_process_to_a_graph():
-    from ssf_common.launch import GraphSpec, NodeSpec, command_line
-    from ssf_common.viewer.command import with_viewer
+    from ssf_bringup.launcher import GraphSpec, NodeSpec, command_line, with_viewer
     from ssf_common.viewer.server import ViewerConfig
 
     graph = GraphSpec(nodes=[NodeSpec(executable="sim_bridge")])

@@ -15,7 +15,7 @@ import pytest
 from ssf_common.errors import ConfigError
 from ssf_common.records import ObstacleKind
 
-from ssf_eval.nav.perception import Observation
+from ssf_eval.nav.observation import Observation
 from ssf_eval.nav.campaign import LocalRunner, RayRunner, TrialLog, campaign_specs, run_campaign
 from sim_bridge.agents import AgentKind
 from ssf_eval.nav.loop import (PERCEPTION_NAMES, ClosedLoop, DelayLine, MovingTime, TrialOutcome, TrialRecord, TrialSpec,
@@ -312,7 +312,7 @@ def test_the_table_and_the_figure(tmp_path):
     (["--video-first", "1", "--video-dir", "/proc/nav"], "--video-dir"),
 ])
 def test_bad_flags_are_one_line(flags, message, tmp_path):
-    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "eval", "nav", "--resume",
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_bringup.cli", "eval", "nav", "--resume",
                              str(tmp_path / "t.jsonl"), *flags], capture_output=True, text=True, timeout=120)
     assert result.returncode == 2 and message in result.stderr and len(result.stderr.strip().splitlines()) == 1
 
@@ -322,7 +322,7 @@ def test_scenario_settings_reach_the_world_and_key_the_trial(capsys):
     assert spec.key == "gt/50/3/40m+agents.ego_yield=0.0/gt"
     assert ClosedLoop(spec).scenario.agents.ego_yield == 0.0
     assert ClosedLoop(TrialSpec("gt", 50, 3, route_length=40.0)).scenario.agents.ego_yield == 1.0
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     assert main(["eval", "nav", "--agents", "50", "--perception", "gt", "--trials", "1", "-s", "agents.ego_yield:=2"]) == 2
     assert "agents.ego_yield" in capsys.readouterr().err

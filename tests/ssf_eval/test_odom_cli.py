@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from ssf_bringup.cli import main
 from ssf_common import messages
 from ssf_common.bags import BagWriter
-from ssf_common.cli import main
 from ssf_common.dataset.kitti import read_poses, read_tum
 from ssf_common.geometry.se3 import invert, make_pose, transform_points
 from ssf_common.pointcloud import xyz_to_cloud

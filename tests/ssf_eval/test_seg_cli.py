@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from ssf_common.cli import main
+from ssf_bringup.cli import main
 from ssf_common.dataset.pairs import write_pair
 from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_common.records import Segmentation

@@ -8,7 +8,7 @@ import json
 import pytest
 import yaml
 
-from ssf_common.cli import main
+from ssf_bringup.cli import main
 from ssf_common.dataset.pairs import write_pair
 from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_common.errors import ConfigError

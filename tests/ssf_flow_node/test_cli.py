@@ -4,10 +4,10 @@
 import numpy as np
 import pytest
 
-from ssf_common.cli import main
-from ssf_flow_node.core.asf import checkpoint
+from ssf_bringup.cli import main
 from ssf_common.dataset.pairs import write_pair
 from ssf_common.dataset.synthetic import synthetic_pair
+from ssf_flow_node.core.asf import checkpoint
 
 
 @pytest.fixture(scope="module")

@@ -157,9 +157,9 @@ def test_odom_is_the_newest_scans_pose_once_the_period_is_learnt(pose_at):
         stamps = [odometry_from_msg(msg).stamp_ns // PERIOD_NS for msg in sent]
         assert stamps == ([0, 2, 3, 4, 6, 7] if pose_at == "next_scan" else [0, 2, 3, 4, 5, 6])
         assert odometry_from_msg(sent[-1]).position[0] == pytest.approx(stamps[-1] * STEP, abs=0.05)
-        assert node.period_ns == PERIOD_NS
-        node.learn_period(PERIOD_NS + 2_000_000)  # a driver's jitter does not unlearn it
-        assert node.period_ns == PERIOD_NS
+        assert node.period.period_ns == PERIOD_NS
+        node.period.learn(PERIOD_NS + 2_000_000)  # a driver's jitter does not unlearn it
+        assert node.period.period_ns == PERIOD_NS
     finally:
         node.destroy_node()
 
@@ -174,8 +174,8 @@ def test_commands_sent_between_scans_are_the_motion_prior():
         assert node.motion_prior(0) is None  # no scan yet
         node.on_command(twist(linear=vector(x=float("nan"), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0)))
         node.on_command(twist(linear=vector(x=5.0, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.2)))
-        assert len(node.commands) == 1
-        start = node.commands[0][0]
+        assert len(node.vehicle.commands) == 1
+        start = node.vehicle.commands[0][0]
         node._last_stamp, node.speed = start - 1, 5.0
         assert node.motion_prior(start + 10**9) is None  # no command was in force at the last scan
         node._last_stamp = start
@@ -186,7 +186,7 @@ def test_commands_sent_between_scans_are_the_motion_prior():
         assert prior[1, 3] != pytest.approx(base[1, 3], abs=0.05)  # the mount's lever arm moves the LiDAR sideways
         node.get_clock().use_sim_time = True  # a restarted simulator: its clock starts again from zero
         node.on_command(twist(linear=vector(x=1.0, y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=0.0)))
-        assert [command[1] for command in node.commands] == [1.0]  # the old stream's commands are forgotten
+        assert [command[1] for command in node.vehicle.commands] == [1.0]  # the old stream's commands are forgotten
     finally:
         node.destroy_node()
 
@@ -209,14 +209,14 @@ def test_measured_twists_between_scans_are_the_measured_motion():
             node.on_twist(measurement(k * PERIOD_NS, 5.0, 0.2))
         node.on_twist(measurement(10 * PERIOD_NS, 5.0, 0.2))  # the same sample again
         node.on_twist(measurement(11 * PERIOD_NS, float("inf"), 0.0))
-        assert len(node.twists) == 10
+        assert len(node.vehicle.twists) == 10
         assert node.measured_prior(10 * PERIOD_NS) is None  # no scan yet
         node._last_stamp = 0
         base = node.mount @ node.measured_prior(10 * PERIOD_NS) @ invert(node.mount)
         assert np.arctan2(base[1, 0], base[0, 0]) == pytest.approx(0.2, abs=1e-9)
         assert np.hypot(*base[:2, 3]) == pytest.approx(2 * 5.0 / 0.2 * np.sin(0.1), abs=0.01)  # the arc's chord
         node.on_twist(measurement(PERIOD_NS, 1.0, 0.0))  # a restarted stream
-        assert list(node.twists) == [(PERIOD_NS, 1.0, 0.0)]
+        assert list(node.vehicle.twists) == [(PERIOD_NS, 1.0, 0.0)]
         node._last_stamp = 100 * PERIOD_NS  # measurements ten seconds before the scans: stopped, or another clock
         assert node.measured_prior(101 * PERIOD_NS) is None and node.said_no_twist
     finally:

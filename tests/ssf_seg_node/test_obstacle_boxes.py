@@ -6,8 +6,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ssf_common.records import ObstacleKind, Segmentation
-from ssf_seg_node.core.obstacles import ObstacleConfig, extract_obstacles, fit_footprint_axis, heading_of_nearest_side
+from ssf_common.geometry.se3 import invert, make_pose
+from ssf_common.records import EgoMotion, MotionLabel, ObstacleKind, Segmentation, SemanticFlow
+from ssf_seg_node.core.obstacles import (ObstacleConfig, extract_obstacles, fit_footprint_axis, heading_of_nearest_side,
+                                         result_obstacles)
 
 DT = 0.1
 
@@ -107,3 +109,26 @@ def test_heading_of_nearest_side():
     assert heading_of_nearest_side(np.radians(10.0), np.radians(-170.0)) == pytest.approx(np.radians(-170.0))
     assert heading_of_nearest_side(np.radians(10.0), np.radians(150.0)) == pytest.approx(np.radians(-170.0))  # 190°
     assert heading_of_nearest_side(np.radians(10.0), np.radians(130.0)) == pytest.approx(np.radians(100.0))
+
+
+def test_a_finished_scan_moves_its_obstacles_by_its_own_ego_motion_or_by_one_fitted_to_its_static_flow():
+    rng = np.random.default_rng(5)
+    ground = np.column_stack([rng.uniform(-20, 20, (800, 2)), rng.uniform(-1.7, -1.6, 800)]).astype(np.float32)
+    car = visible_faces((8.0, 3.0), 0.3, 4.5, 1.8, 40, rng).astype(np.float32)
+    points = np.concatenate([ground, car])
+    ego = make_pose(1.0, 0.0, 0.0)  # the sensor drove 1 m forward in 0.1 s: the still scene comes 1 m nearer
+    flow = (points - np.array([1.0, 0.0, 0.0], np.float32)) - points
+    flow[len(ground):] += np.array([0.5, 0.0, 0.0], np.float32)  # the car moves 5 m/s on top
+    dynamic = np.arange(len(points)) >= len(ground)
+    labels = np.where(dynamic, MotionLabel.DYNAMIC, MotionLabel.STATIC).astype(np.uint8)
+    segmentation = Segmentation(dynamic.astype(np.float32), labels, dynamic.astype(np.int32))
+    config = ObstacleConfig()
+    motion = EgoMotion(7, 7 + 100_000_000, "lidar", invert(ego))
+    with_ego = SemanticFlow(7, "lidar", points, flow, segmentation, ego=motion)
+    found = result_obstacles(with_ego, config, fallback_dt=0.5).moving  # the ego motion's own dt (0.1 s) counts
+    assert len(found) == 1 and found.velocities[0, 0] == pytest.approx(5.0, abs=0.3)
+    fitted = result_obstacles(SemanticFlow(7, "lidar", points, flow, segmentation), config, fallback_dt=0.1).moving
+    np.testing.assert_allclose(fitted.velocities, found.velocities, atol=1e-3)
+    slower = result_obstacles(SemanticFlow(7, "lidar", points, flow, segmentation), config, fallback_dt=0.2).moving
+    np.testing.assert_allclose(slower.velocities, found.velocities / 2, atol=1e-3)
+

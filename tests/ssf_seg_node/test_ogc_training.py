@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from ssf_common.cli import main
+from ssf_bringup.cli import main
 from ssf_common.dataset.estimates import flow_estimate_path, read_flow_estimate
 from ssf_common.dataset.pairs import pair_files, write_pair
 from ssf_common.dataset.synthetic import synthetic_pair

@@ -63,6 +63,18 @@ def grid_cells(points: np.ndarray, cell: float, border: int = 0) -> tuple[np.nda
     return codes, shape
 
 
+def voxel_keys(points: np.ndarray, voxel: float, bits: int = 21, clip: bool = False) -> np.ndarray:
+    """One int64 code per point (N, D) naming its voxel: each axis offset by half its 2**bits range and packed `bits`
+    apart (clipped into that range when `clip`), the same code wherever the points are, from any scan."""
+    keys = np.floor(np.asarray(points, dtype=np.float64) / voxel).astype(np.int64) + (1 << (bits - 1))
+    if clip:
+        keys = np.clip(keys, 0, (1 << bits) - 1)
+    codes = keys[:, 0]
+    for axis in range(1, keys.shape[1]):
+        codes = (codes << bits) | keys[:, axis]
+    return codes
+
+
 def voxel_indices(points: np.ndarray, voxel: float) -> np.ndarray:
     """One point (the first) per occupied voxel (any number of coordinates), indices sorted."""
     points = np.asarray(points)

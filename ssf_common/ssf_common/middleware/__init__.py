@@ -10,7 +10,17 @@ import sys
 from collections.abc import Callable, Sequence
 
 from ssf_common.errors import SsfError
-from ssf_common.middleware.node import Clock, Heard, Logger, Node, Publisher, SteadyClock, Subscription, Timer
+from ssf_common.middleware.node import (
+    Clock,
+    Heard,
+    Logger,
+    Node,
+    Publisher,
+    SteadyClock,
+    Subscription,
+    Timer,
+    dropped_text,
+)
 from ssf_common.middleware.qos import (
     QOS_CLOCK,
     QOS_DEFAULT,
@@ -37,6 +47,7 @@ __all__ = [
     "SteadyClock",
     "Subscription",
     "Timer",
+    "dropped_text",
     "run",
     "shutdown",
 ]

@@ -21,6 +21,7 @@ from ssf_common.middleware.params import Parameter, coerce, parse_ros_args
 from ssf_common.middleware.qos import QOS_CLOCK, QOS_DEFAULT, QoS
 
 ModelT = TypeVar("ModelT", bound=BaseModel)
+DecodedT = TypeVar("DecodedT")
 
 _LEVELS = {"debug": 10, "info": 20, "warn": 30, "warning": 30, "error": 40, "fatal": 50}
 
@@ -198,7 +199,7 @@ class Subscription:
             self.heard = Heard(self._node.get_clock().now_ns(), time.monotonic_ns())
         except SsfError as err:
             self.dropped += 1
-            self._node.get_logger().error(f"dropped a message on {self.topic_name}: {err}")
+            self._node.get_logger().error(dropped_text(self.topic_name, err))
         except Exception as err:  # noqa: BLE001 - a node keeps running whatever one message does
             self.dropped += 1
             self._node.get_logger().error(
@@ -208,6 +209,11 @@ class Subscription:
     def get_publisher_count(self) -> int:
         """Matched publishers."""
         return self.transport.matched_count()
+
+
+def dropped_text(topic: str, err: object, consequence: str = "") -> str:
+    """The one line every node logs for a message it could not use."""
+    return f"dropped a message on {topic}: {err}{consequence}"
 
 
 def selected_backend() -> str:
@@ -283,6 +289,15 @@ class Node:
     def get_steady_clock(self) -> SteadyClock:
         """A clock that cannot stop or jump back, for liveness: `create_timer(period, callback, clock=...)`."""
         return self._steady_clock
+
+    def decoded(self, decode: Callable[..., DecodedT], msg: Any, topic: str, *args: Any,
+                errors: tuple[type[Exception], ...] = (MessageError,), consequence: str = "") -> DecodedT | None:
+        """`decode(msg, *args)`, or None with a warning that the message on `topic` was dropped (and what follows)."""
+        try:
+            return decode(msg, *args)
+        except errors as err:
+            self._logger.warning(dropped_text(topic, err, consequence))
+            return None
 
     @property
     def subscriptions(self) -> list[Subscription]:

@@ -10,7 +10,6 @@ from typing import TYPE_CHECKING, Any
 from ssf_common.viewer import DEFAULT_PORT, LOOPBACK
 
 if TYPE_CHECKING:
-    from ssf_common.launch import GraphSpec
     from ssf_common.viewer.server import ViewerConfig
 
 VIEWER_NODE = "viewer"
@@ -48,20 +47,6 @@ def viewer_config(args: argparse.Namespace, source: str) -> ViewerConfig | None:
     if getattr(args, "foxglove", None) is None:
         return None
     return build(ViewerConfig, {"port": args.foxglove, "host": args.foxglove_host}, source=f"{source} --foxglove")
-
-
-def with_viewer(graph: GraphSpec, config: ViewerConfig | None) -> GraphSpec:
-    """The graph plus an `ssf view` process (unchanged without a config); the port is checked free first."""
-    if config is None:
-        return graph
-    from ssf_common.launch import NodeSpec
-    from ssf_common.viewer.server import check_port_free
-
-    if config.port:
-        check_port_free(config.host, config.port)
-    viewer = NodeSpec(executable="ssf", name=VIEWER_NODE, ros_args=False, respawn=False,
-                      arguments=["view", "--port", str(config.port), "--host", config.host])
-    return graph.model_copy(update={"nodes": [*graph.nodes, viewer]})
 
 
 def run_view(args: argparse.Namespace) -> int:

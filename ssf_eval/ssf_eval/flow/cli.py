@@ -6,9 +6,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 from ssf_eval.sources import add_pair_source_options
-from ssf_flow_node.cli import ALL_ESTIMATORS, add_estimator_options
+from ssf_flow_node.options import ALL_ESTIMATORS, add_estimator_options
 
 
 def register(groups: CommandGroups) -> None:
@@ -34,7 +34,7 @@ def register(groups: CommandGroups) -> None:
                                     "with noisy masks, as the fusion loop hands them to the node.")
     bench.add_argument("--frames", type=int, default=20, help="timed frames per estimator (default 20)")
     bench.add_argument("--scenario", default="urban_200", help="simulator scenario the pairs come from ('synthetic': built-in street)")
-    from sim_bridge.cli import add_protocol_options
+    from sim_bridge.options import add_protocol_options
 
     add_protocol_options(bench)
     bench.add_argument("--estimators", "--estimator", nargs="+", default=["ego", "rigid", "asf"], metavar="E")
@@ -52,7 +52,7 @@ def run_eval(args: argparse.Namespace) -> int:
     from ssf_eval.flow.evaluate import MaskSource, evaluate, format_table
     from ssf_eval.results import write_result
     from ssf_eval.sources import pairs_from_args
-    from ssf_flow_node.cli import build_estimators, flow_config
+    from ssf_flow_node.options import build_estimators, flow_config
 
     for path, what in ((args.json, "result file"), (args.plot, "picture")):
         if path is not None:
@@ -98,7 +98,7 @@ def run_bench(args: argparse.Namespace) -> int:
     from ssf_common.paths import check_writable
     from ssf_eval.results import write_result
     from ssf_eval.sources import protocol_from_args, simulator_pairs
-    from ssf_flow_node.cli import build_estimators, flow_config
+    from ssf_flow_node.options import build_estimators, flow_config
 
     if args.frames < 1:
         raise ConfigError(f"--frames must be at least 1, got {args.frames}")

@@ -18,23 +18,7 @@ from typing import Protocol, TextIO
 
 from ssf_common.errors import ConfigError, DataError
 from ssf_eval.nav.loop import TrialRecord, TrialSpec, run_trial
-from ssf_eval.nav.repeatable import pool_worker, ray_attempt
-
-
-@dataclass(frozen=True)
-class TrialFailure:
-    """A trial that raised instead of finishing: not logged, so a resumed campaign runs it again."""
-
-    key: str
-    error: str
-
-
-def attempt(spec: TrialSpec, trial: Callable[[TrialSpec], TrialRecord] = run_trial) -> TrialRecord | TrialFailure:
-    """Run one trial; an exception becomes a TrialFailure instead of ending the campaign."""
-    try:
-        return trial(spec)
-    except Exception as err:  # noqa: BLE001 - one broken trial must not lose the others
-        return TrialFailure(spec.key, f"{type(err).__name__}: {err}")
+from ssf_eval.nav.repeatable import TrialFailure, attempt, pool_worker, ray_attempt
 
 
 def campaign_specs(perceptions: list[str], agents: list[int], trials: int, seed: int = 100,
@@ -155,7 +139,7 @@ class RayRunner:
 
 
 @dataclass
-class Progress:
+class CampaignProgress:
     """One stderr line per finished trial: count, elapsed, ETA, and the running success rate of its cell."""
 
     total: int
@@ -195,7 +179,7 @@ def run_campaign(specs: list[TrialSpec], log: TrialLog, runner: Runner, out: Tex
     todo = [spec for spec in specs if spec.key not in finished]
     if finished:
         print(f"resuming {log.path}: {len(specs) - len(todo)} of {len(specs)} trials already done", file=out)
-    progress = Progress(len(todo), out)
+    progress = CampaignProgress(len(todo), out)
     progress.seed_cells(finished[spec.key] for spec in specs if spec.key in finished)
     for record in runner.map(todo):
         if isinstance(record, TrialFailure):

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 DEFAULT_AGENTS = "50,100,200,500,800,1000"
 DEFAULT_PERCEPTION = "gt,dbscan,dbscan0,ssf,follower"

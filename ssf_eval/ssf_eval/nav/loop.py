@@ -17,10 +17,11 @@ from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Simulator
 from ssf_common.config import build
 from ssf_common.errors import ConfigError
-from ssf_common.records import Obstacles, Plan
 from ssf_common.geometry.se3 import invert
-from ssf_eval.nav.perception import ODOM_FRAME, GroundTruthPerception, Observation, make_perception
+from ssf_common.records import Obstacles, Plan
 from ssf_eval.nav.film import TrialFilm
+from ssf_eval.nav.observation import ODOM_FRAME, Observation
+from ssf_eval.nav.perception import GroundTruthPerception, make_perception
 from ssf_eval.nav.ssf_source import ConsecutiveScans, SsfPose, whole_scan_config
 from ssf_planner_node.core.config import PlannerConfig
 from ssf_planner_node.core.frames import carried_forward, vehicle_state

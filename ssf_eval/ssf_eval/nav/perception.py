@@ -8,42 +8,20 @@ knows every agent (moving or not; the simulator's structure stays off the road).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Protocol
 
 import numpy as np
 from pydantic import Field
 
 from sim_bridge.ros_messages import WORLD_FRAME, agent_obstacles
-from sim_bridge.simulator import Frame
 from sim_bridge.world import World
 from ssf_common.dataset.pairs import PointClass
 from ssf_common.errors import ConfigError
 from ssf_common.records import ObstacleKind, Obstacles
+from ssf_eval.nav.observation import ODOM_FRAME, NavPerception, Observation
 from ssf_seg_node.core.obstacles import StillClusters, StillConfig, still_clusters
 
-ODOM_FRAME = "odom"
 
-
-@dataclass(frozen=True)
-class Observation:
-    """What perception gets each tick: the simulator frame and where the sensor is in the odometry frame."""
-
-    frame: Frame
-    lidar_pose: np.ndarray  # (4, 4) odom <- lidar at the frame's stamp
-    world_to_odom: np.ndarray  # (4, 4) odom <- world (ground truth, for `gt` only)
-
-
-class Perception(Protocol):
-    """A perception source: obstacles (odometry frame, with velocities) from each frame in turn."""
-
-    name: str
-    reads_scan: bool
-
-    def observe(self, observation: Observation) -> Obstacles:
-        """Obstacles seen in this frame (stamped when they were seen)."""
-
-
-class DbscanConfig(StillConfig):
+class DbscanTrackerConfig(StillConfig):
     """LiDAR clustering as common stacks do it (rda_ros: DBSCAN, minimum-area rectangles), and tracking."""
 
     gate: float = Field(1.5, gt=0.0, description="tracking: a cluster continues the track whose predicted centre is "
@@ -103,7 +81,7 @@ class DbscanPerception:
 
     reads_scan = True
 
-    def __init__(self, config: DbscanConfig, track: bool = True) -> None:
+    def __init__(self, config: DbscanTrackerConfig, track: bool = True) -> None:
         self.config = config
         self.track = track
         self.name = "dbscan" if track else "dbscan0"
@@ -140,7 +118,8 @@ class DbscanPerception:
         return np.where(ages[:, None] >= 2, velocities, 0.0), ids
 
 
-def cluster_boxes(points: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int, config: DbscanConfig) -> StillClusters:
+def cluster_boxes(points: np.ndarray, lidar_pose: np.ndarray, stamp_ns: int,
+                  config: DbscanTrackerConfig) -> StillClusters:
     """The DBSCAN clusters of a scan's points (sensor frame) above the ground, as boxes in the odometry frame."""
     return still_clusters(points, stamp_ns, ODOM_FRAME, config, lidar_pose)
 
@@ -161,12 +140,12 @@ def match_nearest(predicted: np.ndarray, centres: np.ndarray, gate: float) -> np
     return matched
 
 
-def make_perception(name: str, **settings) -> Perception:
+def make_perception(name: str, **settings) -> NavPerception:
     """The perception source called `name` (gt | dbscan | dbscan0 | ssf)."""
     if name == "gt":
         return GroundTruthPerception()
     if name in ("dbscan", "dbscan0"):
-        return DbscanPerception(settings.get("dbscan", DbscanConfig()), track=name == "dbscan")
+        return DbscanPerception(settings.get("dbscan", DbscanTrackerConfig()), track=name == "dbscan")
     if name == "ssf":
         from ssf_eval.nav.ssf_source import SsfPerception
 

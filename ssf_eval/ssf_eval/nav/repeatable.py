@@ -10,7 +10,32 @@ from __future__ import annotations
 import os
 import signal
 import sys
-from typing import Any
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from ssf_eval.nav.loop import TrialRecord, TrialSpec
+
+
+@dataclass(frozen=True)
+class TrialFailure:
+    """A trial that raised instead of finishing: not logged, so a resumed campaign runs it again."""
+
+    key: str
+    error: str
+
+
+def attempt(spec: TrialSpec, trial: Callable[[TrialSpec], TrialRecord] | None = None) -> TrialRecord | TrialFailure:
+    """Run one trial (default `run_trial`); an exception becomes a TrialFailure instead of ending the campaign."""
+    if trial is None:
+        from ssf_eval.nav.loop import run_trial
+
+        trial = run_trial
+    try:
+        return trial(spec)
+    except Exception as err:  # noqa: BLE001 - one broken trial must not lose the others
+        return TrialFailure(spec.key, f"{type(err).__name__}: {err}")
 
 
 def load_open3d_on_one_thread() -> bool:
@@ -34,11 +59,10 @@ def pool_worker() -> None:
 
 
 def ray_attempt(spec_fields: dict[str, Any], trial: Any = None) -> Any:
-    """A Ray task: Open3D on one thread (in a fresh worker process), then `campaign.attempt` of the trial spec given
+    """A Ray task: Open3D on one thread (in a fresh worker process), then `attempt` of the trial spec given
     as plain fields (a TrialSpec would load Open3D as it arrives) with `trial` (default `run_trial`)."""
     os.environ.setdefault("OMP_NUM_THREADS", "1")
     load_open3d_on_one_thread()
-    from ssf_eval.nav.campaign import attempt
-    from ssf_eval.nav.loop import TrialSpec, run_trial
+    from ssf_eval.nav.loop import TrialSpec
 
-    return attempt(TrialSpec(**spec_fields), trial or run_trial)
+    return attempt(TrialSpec(**spec_fields), trial)

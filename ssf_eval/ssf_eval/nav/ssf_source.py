@@ -11,13 +11,13 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from ssf_common.config import build
-from ssf_common.geometry.kinematics import commanded_motion, forward_speed
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
-from ssf_eval.nav.perception import ODOM_FRAME, Observation
+from ssf_eval.nav.observation import ODOM_FRAME, Observation
 from ssf_eval.pipeline import PerceptionChain, PerceptionConfig, ScanPerception
 from ssf_flow_node.core.estimator import WHOLE_SCAN
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
+from ssf_odom_node.core.vehicle import command_prior, speed_ahead
 
 
 def whole_scan_config(loop_iterations: int | None = None) -> PerceptionConfig:
@@ -119,17 +119,14 @@ class SsfPose:
                 self.lidar_pose = self.lidar_pose @ self.motion
             return self.lidar_pose
         fusion = pair.seen.fusion
-        prior = None
-        if self.odometry.stamp_ns is not None:
-            prior = commanded_motion([(stamp, command.linear, command.angular) for stamp, command in commands],
-                                     self.odometry.stamp_ns, pair.stamp_ns, self.speed, *self.limits, self.mount)
+        prior = command_prior([(stamp, command.linear, command.angular) for stamp, command in commands],
+                              self.odometry.stamp_ns, pair.stamp_ns, self.speed, self.limits, self.mount)
         step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob,
                                             prior, ego=fusion.ego))
         ahead = np.eye(4) if step.next_motion is None else invert(step.next_motion)
         self.motion = ahead
         self.lidar_pose = self.mount @ step.pose @ ahead
-        self.speed = float(step.twist[0]) if step.next_motion is None else forward_speed(
-            ahead, self.odometry.config.scan_period, self.mount)
+        self.speed = speed_ahead(step, self.odometry.config.scan_period, self.mount, without_flow=float(step.twist[0]))
         return self.lidar_pose
 
     @property

@@ -12,16 +12,16 @@ from pathlib import Path
 import numpy as np
 
 from ssf_common.errors import ConfigError, DataError
-from ssf_eval.odom.evaluate import Perceived, Perception
+from ssf_eval.odom.evaluate import Perceived, OdomPerception
 from ssf_eval.odom.sequence import SimScan
 
 KEY_FILE = "drive.json"
 
 
 class CachedPerception:
-    """Perception that stores what it computes for each scan in `folder` and reads it back where stored."""
+    """OdomPerception that stores what it computes for each scan in `folder` and reads it back where stored."""
 
-    def __init__(self, perception: Perception, folder: Path, drive: dict) -> None:
+    def __init__(self, perception: OdomPerception, folder: Path, drive: dict) -> None:
         self.perception = perception
         self.folder = Path(folder)
         self.drive = {**drive, "masks": perception.masks.value, "maskless_flow": perception.plain is not None}

@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 ALL_METHODS = ("points", "flow", "ssf", "kiss-icp")  # the default rows
 KNOWN_METHODS = (*ALL_METHODS, "ssf+twist")  # and ssf with the vehicle's measured motion (wheel speed, gyro)
@@ -135,7 +135,7 @@ def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: 
     whole-scan defaults and `overrides`); the loop runs only when the masks come from the segmentation. `plain`: the
     flow without a mask is wanted too (the 'flow' method)."""
     from ssf_common.config import build
-    from ssf_eval.odom.evaluate import MaskSource, Perception
+    from ssf_eval.odom.evaluate import OdomMaskSource, OdomPerception
     from ssf_eval.pipeline import PerceptionConfig, PerceptionChain
     from ssf_flow_node.core.estimator import WHOLE_SCAN, make_estimator
 
@@ -146,7 +146,7 @@ def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: 
     maskless = None
     if plain:  # the loop's estimator answers the graph's questions only; the stand-in masks' one asks both
         maskless = make_estimator(config.flow.estimator, config.flow) if segmented else estimator
-    return Perception(MaskSource(masks), estimator, pipeline if segmented else None, seed, maskless)
+    return OdomPerception(OdomMaskSource(masks), estimator, pipeline if segmented else None, seed, maskless)
 
 
 def format_table(results: dict) -> str:

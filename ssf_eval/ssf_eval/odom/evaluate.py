@@ -26,7 +26,7 @@ SSF_TWIST = "ssf+twist"  # ssf with the vehicle's measured motion (wheel speed, 
 METHODS = ("points", "flow", "ssf", SSF_TWIST)
 
 
-class MaskSource(str, Enum):
+class OdomMaskSource(str, Enum):
     """Where the static mask comes from: the segmentation (fusion loop), or ground-truth stand-ins for ablations."""
 
     SEG = "seg"
@@ -46,14 +46,14 @@ class Perceived:
     ego: np.ndarray | None = None  # (4, 4) the flow estimator's ego motion of the masked flow (None: not known)
 
 
-class Perception:
+class OdomPerception:
     """Scene flow from the project's estimator on whole scans and the static mask from the chosen source.
 
     With masks from the segmentation, the flow without a mask comes from an estimator of its own (`plain`), so that
     the loop's estimator carries from pair to pair exactly what the graph's flow node does."""
 
-    def __init__(self, masks: MaskSource, estimator, pipeline=None, seed: int = 0, plain=None) -> None:
-        self.masks = MaskSource(masks)
+    def __init__(self, masks: OdomMaskSource, estimator, pipeline=None, seed: int = 0, plain=None) -> None:
+        self.masks = OdomMaskSource(masks)
         self.estimator = estimator
         self.pipeline = pipeline  # ssf_eval.pipeline.PerceptionChain, for masks from the segmentation
         self.plain = plain  # estimator of the maskless flow; None: the 'flow' variant is not asked for
@@ -68,13 +68,13 @@ class Perception:
         """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
         started = time.perf_counter()
         plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points).flow
-        if self.masks is MaskSource.SEG:
+        if self.masks is OdomMaskSource.SEG:
             result = self.pipeline.perceive(scan.points, scan.next_points, follows=True).fusion  # consecutive scans
             return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3,
                              result.ego)
-        if self.masks is MaskSource.GT:
+        if self.masks is OdomMaskSource.GT:
             mask = scan.dynamic.astype(np.float32)
-        elif self.masks is MaskSource.AGENTS:
+        elif self.masks is OdomMaskSource.AGENTS:
             mask = (scan.instance > 0).astype(np.float32)
         else:
             pair = make_pair(scan.points, scan.next_points, np.zeros_like(scan.points), scan.dynamic, scan.instance)
@@ -169,7 +169,7 @@ def write_trajectories(result: SequenceResult, folder: Path, title: str) -> list
     return written
 
 
-def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: Perception | None, config: OdomConfig,
+def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: OdomPerception | None, config: OdomConfig,
                  map_voxel: float, trail_every: int = 10, progress: Callable[[int], None] | None = None) -> SequenceResult:
     """Step every method through the scans; sample each map's trails every `trail_every` scans."""
     odometries = {name: make_odometry("ssf" if name == SSF_TWIST else name, config) for name in methods

@@ -14,17 +14,13 @@ from __future__ import annotations
 
 import numpy as np
 
+from ssf_common.geometry.sampling import voxel_keys
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
 
 CELL = 0.25  # m, grid of the swept footprints
 GROUND_CLEARANCE = 0.2  # m: map points this close to an agent's base are the ground under it, not the agent
-KEY_OFFSET = 1 << 30
-
-
-def _codes(xy: np.ndarray) -> np.ndarray:
-    keys = np.floor(xy / CELL).astype(np.int64) + KEY_OFFSET
-    return (keys[:, 0] << 31) | keys[:, 1]
+KEY_BITS = 31  # per axis of the footprint grid's codes
 
 
 class SweptPaths:
@@ -50,7 +46,7 @@ class SweptPaths:
                        agents.centres[:, None, 1] + s[:, None] * along + c[:, None] * across], axis=2).reshape(-1, 2)
         base = np.repeat(agents.centres[:, 2] - agents.sizes[:, 2] / 2, local.shape[0])
         top = np.repeat(agents.centres[:, 2] + agents.sizes[:, 2] / 2, local.shape[0])
-        codes = np.concatenate([self.codes, _codes(xy)])
+        codes = np.concatenate([self.codes, voxel_keys(xy, CELL, KEY_BITS)])
         base, top = np.concatenate([self.base, base]), np.concatenate([self.top, top])
         self.codes, inverse = np.unique(codes, return_inverse=True)
         self.base = np.full(len(self.codes), np.inf)
@@ -62,7 +58,7 @@ class SweptPaths:
         """(N,) bool: world points inside a swept footprint, above the ground under it and below the agent's top."""
         if len(self.codes) == 0 or len(points) == 0:
             return np.zeros(len(points), bool)
-        codes = _codes(np.asarray(points)[:, :2])
+        codes = voxel_keys(np.asarray(points)[:, :2], CELL, KEY_BITS)
         where = np.minimum(np.searchsorted(self.codes, codes), len(self.codes) - 1)
         inside = self.codes[where] == codes
         z = np.asarray(points)[:, 2]

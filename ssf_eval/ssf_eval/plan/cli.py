@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 MAX_OBSTACLES = 100_000  # a flood; more is a test of memory, not of the planner
 

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 from ssf_eval.sources import add_pair_source_options
 
 DEFAULT_METHODS = ("geometric", "gmm", "dbscan", "pointnet", "ogc", "ssf")

@@ -6,14 +6,14 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 
 STRESS_SCENARIOS = ("stress_junction", "stress_queue", "stress_crossing", "stress_parked", "stress_far")
 
 
 def register(groups: CommandGroups) -> None:
     """Add `ssf eval sensors`."""
-    from sim_bridge.cli import add_protocol_options
+    from sim_bridge.options import add_protocol_options
     from sim_bridge.sensors import sensor_names
     from ssf_eval.seg.cli import add_perception_options
 

@@ -44,7 +44,7 @@ class RegistrationConfig(Section):
     seed: int = 0
 
 
-class Alignment(NamedTuple):
+class IcpAlignment(NamedTuple):
     """A transform (4x4) and the share of the ICP's points it brings within the correspondence distance."""
 
     transform: np.ndarray
@@ -85,7 +85,7 @@ class ScanMatcher:
         """Transform T (4x4) near `initial` that maps source points accurately onto the target surfaces."""
         return self.refined(source, initial, ordered).transform
 
-    def refined(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> Alignment:
+    def refined(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> IcpAlignment:
         """The refinement from `initial`, with the share of its points it brings within refine_distance."""
         return self.fit(source, initial, self.config.refine_points, self.config.refine_distance,
                         self.config.refine_iterations, ordered)
@@ -113,12 +113,12 @@ class ScanMatcher:
         return max(candidates, key=lambda fit: fit.fitness).transform
 
     def fit(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int,
-            ordered: bool = False, sample: int = 0) -> Alignment:
+            ordered: bool = False, sample: int = 0) -> IcpAlignment:
         """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points (the
         `sample`-th random sample: ordered sources use their `sample`-th run of `points`)."""
         transform = np.asarray(initial, dtype=np.float64)
         if source.shape[0] < 10 or not self.usable:
-            return Alignment(transform, 0.0)
+            return IcpAlignment(transform, 0.0)
         if source.shape[0] > points:
             source = source[(sample * points + np.arange(points)) % source.shape[0]] if ordered else source[
                 source_sample(source.shape[0], points, self.config.seed, sample)]
@@ -141,7 +141,7 @@ class Open3dTarget:
         return normals if len(normals) else np.zeros((len(self.cloud.points), 3))
 
     def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
-            tolerance: float) -> Alignment:
+            tolerance: float) -> IcpAlignment:
         """ICP from `initial`; fitness: the share of source points within `distance`."""
         import open3d as o3d
 
@@ -151,7 +151,7 @@ class Open3dTarget:
             pipelines.TransformationEstimationPointToPlane(pipelines.TukeyLoss(k=distance / 2.0)),
             pipelines.ICPConvergenceCriteria(tolerance, tolerance, iterations),
         )
-        return Alignment(np.asarray(result.transformation), float(result.fitness))
+        return IcpAlignment(np.asarray(result.transformation), float(result.fitness))
 
 
 class SmallGicpTarget:
@@ -175,14 +175,14 @@ class SmallGicpTarget:
         return np.asarray(self.cloud.normals())[:, :3] if self.tree is not None else np.zeros((self.count, 3))
 
     def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
-            tolerance: float) -> Alignment:
+            tolerance: float) -> IcpAlignment:
         """ICP from `initial` (small_gicp stops on its own small-update test: `tolerance` does not apply); fitness:
         the share of source points within half the distance."""
         result = self.small_gicp.align(self.cloud, self.small_gicp.PointCloud(np.asarray(source, dtype=np.float64)),
                                        self.tree, np.asarray(initial, dtype=np.float64), registration_type="PLANE_ICP",
                                        max_correspondence_distance=distance / 2.0, num_threads=1,
                                        max_iterations=iterations)
-        return Alignment(np.asarray(result.T_target_source), result.num_inliers / max(source.shape[0], 1))
+        return IcpAlignment(np.asarray(result.T_target_source), result.num_inliers / max(source.shape[0], 1))
 
 
 def source_sample(count: int, points: int, seed: int, sample: int) -> np.ndarray:

@@ -14,11 +14,11 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ssf_common.config import Section
+from ssf_common.geometry.sampling import voxel_keys
 from ssf_common.geometry.se3 import invert
 from ssf_odom_node.core.registration import PlaneTarget
 
 KEY_BITS = 21  # per axis: +-1M voxels, packed into one int64 code
-KEY_OFFSET = 1 << (KEY_BITS - 1)
 BYTES_PER_VOXEL = 3 * 4 + 3 * 4 + 8 + 2 + 4 + 1  # float32 point and normal, int64 code, evidence, first scan, confirmed
 BYTES_PER_MOVING = 8 + 4  # int64 code and last scan of a voxel remembered as holding moving points
 MOVING_CLEARANCE = 0.5  # in voxels: moving points this close above the lowest point of their column are its ground
@@ -81,14 +81,10 @@ def angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
 def above_ground(moving: np.ndarray, scan: np.ndarray, voxel: float) -> np.ndarray:
     """(M,) bool: moving points higher than half a voxel above the lowest point (of `scan` and `moving`) in their
     column (voxel x voxel, horizontally): a moving agent's body, not the ground under it."""
-    def column(points: np.ndarray) -> np.ndarray:
-        keys = np.floor(np.asarray(points[:, :2], np.float64) / voxel).astype(np.int64) + KEY_OFFSET
-        return (keys[:, 0] << KEY_BITS) | keys[:, 1]
-
     if len(moving) == 0:
         return np.zeros(0, bool)
     every = np.concatenate([np.asarray(scan, np.float32)[:, :3], np.asarray(moving, np.float32)[:, :3]])
-    columns, inverse = np.unique(column(every), return_inverse=True)
+    columns, inverse = np.unique(voxel_keys(every[:, :2], voxel, KEY_BITS), return_inverse=True)
     lowest = np.full(len(columns), np.inf, np.float32)
     np.minimum.at(lowest, inverse, every[:, 2])
     return moving[:, 2] > lowest[inverse[len(scan):]] + MOVING_CLEARANCE * voxel
@@ -96,9 +92,7 @@ def above_ground(moving: np.ndarray, scan: np.ndarray, voxel: float) -> np.ndarr
 
 def voxel_codes(points: np.ndarray, voxel: float) -> np.ndarray:
     """One int64 code per point naming its voxel."""
-    keys = np.floor(np.asarray(points, dtype=np.float64) / voxel).astype(np.int64) + KEY_OFFSET
-    keys = np.clip(keys, 0, (1 << KEY_BITS) - 1)
-    return (keys[:, 0] << (2 * KEY_BITS)) | (keys[:, 1] << KEY_BITS) | keys[:, 2]
+    return voxel_keys(points, voxel, KEY_BITS, clip=True)
 
 
 class RangeImage(NamedTuple):

@@ -35,7 +35,7 @@ class BenchRow:
     cpu_ms_median: float = 0.0  # CPU time of a tick (the budget is CPU, the target p95 wall)
 
 
-class Traffic:
+class BenchTraffic:
     """M obstacles around a moving ego: vehicles in the two lanes to its left (y = 3.5, 7), pedestrians on the
     pavements (|y| 9-11), a third of them crossing the road."""
 
@@ -61,7 +61,7 @@ class Traffic:
                          yaws=np.zeros(count), velocities=np.c_[self.vx, self.vy, np.zeros(count)])
 
 
-MAX_SLOTS = 50  # the most obstacles a problem takes (ObstacleConfig.max_obstacles' bound)
+MAX_SLOTS = 50  # the most obstacles a problem takes (AvoidanceConfig.max_obstacles' bound)
 
 
 def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> BenchRow:
@@ -71,7 +71,7 @@ def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> B
     slots = max(count, config.obstacles.max_obstacles) if count <= MAX_SLOTS else config.obstacles.max_obstacles
     config = config.model_copy(update={"obstacles": config.obstacles.model_copy(update={"max_obstacles": slots})})
     planner = RdaPlanner(config, Route(np.array([[0.0, 0.0], [100000.0, 0.0]])))
-    traffic = Traffic(count, np.random.default_rng([seed, count]))
+    traffic = BenchTraffic(count, np.random.default_rng([seed, count]))
     x, y, yaw, speed = 0.0, 0.0, 0.0, config.reference_speed
     period = config.control_period
     spent, cpu, rounds = [], [], []

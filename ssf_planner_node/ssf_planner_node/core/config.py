@@ -45,7 +45,7 @@ class WeightsConfig(Section):
     terminal: float = Field(3.0, ge=0.0, description="factor on the tracking terms of the last step")
 
 
-class ObstacleConfig(Section):
+class AvoidanceConfig(Section):
     """Which obstacles the problem sees and how far it keeps from them (RDA's min_sd / max_sd / slack_gain)."""
 
     max_obstacles: int = Field(10, ge=0, le=50, description="K: the obstacles nearest to the planned motion are used")
@@ -69,7 +69,7 @@ class ObstacleConfig(Section):
                                   "collisions but blocked dense traffic, see the README)")
 
     @model_validator(mode="after")
-    def _distances(self) -> ObstacleConfig:
+    def _distances(self) -> AvoidanceConfig:
         if self.comfort_distance < self.safety_distance:
             raise ValueError(f"comfort_distance ({self.comfort_distance}) must be at least safety_distance "
                              f"({self.safety_distance})")
@@ -150,7 +150,7 @@ class PlannerConfig(Section):
                                  "obstacles older than this are stale; 0: plan from its stamp")
     vehicle: VehicleConfig = VehicleConfig()
     weights: WeightsConfig = WeightsConfig()
-    obstacles: ObstacleConfig = ObstacleConfig()
+    obstacles: AvoidanceConfig = AvoidanceConfig()
     passing: PassingConfig = PassingConfig()
     solver: SolverConfig = SolverConfig()
     failsafe: FailSafeConfig = FailSafeConfig()

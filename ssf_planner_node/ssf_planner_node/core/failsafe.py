@@ -28,7 +28,7 @@ class Source(str, Enum):
     OBSTACLES = "obstacles"
 
 
-class Heard(NamedTuple):
+class InputHeard(NamedTuple):
     """When an input was last fresh: the node's clock and the steady clock (ns), and its stamp."""
 
     clock_ns: int
@@ -58,7 +58,7 @@ class InputWatch:
     def __init__(self, config: FailSafeConfig, control_period: float) -> None:
         self.config = config
         self.period_ns = int(round(control_period * 1e9))
-        self.heard: dict[Source, Heard] = {}
+        self.heard: dict[Source, InputHeard] = {}
         self._last_brake: tuple[int, int] | None = None  # (node clock, steady clock) of the last braking command
 
     def take(self, source: Source, stamp_ns: int, clock_ns: int, steady_ns: int) -> bool:
@@ -67,7 +67,7 @@ class InputWatch:
         last = self.heard.get(source)
         if last is not None and last.stamp_ns - RESTART_NS <= stamp_ns <= last.stamp_ns:
             return False
-        self.heard[source] = Heard(int(clock_ns), int(steady_ns), int(stamp_ns))
+        self.heard[source] = InputHeard(int(clock_ns), int(steady_ns), int(stamp_ns))
         return True
 
     def stale(self, clock_ns: int, steady_ns: int, running: bool = False,

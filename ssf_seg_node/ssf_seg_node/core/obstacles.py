@@ -12,11 +12,12 @@ from pydantic import Field
 from ssf_common.config import Section
 from ssf_common.geometry.boxes import bounding_boxes
 from ssf_common.geometry.clustering import dbscan
+from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_means
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, transform_points
-from ssf_common.records import ObstacleKind, Obstacles, Segmentation
+from ssf_common.records import ObstacleKind, Obstacles, Segmentation, SemanticFlow
 
 
 class StillConfig(Section):
@@ -80,6 +81,18 @@ def scan_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentat
         return SceneObstacles(moving, Obstacles.empty(stamp_ns, frame_id))
     still = np.asarray(points)[~segmentation.dynamic]
     return SceneObstacles(moving, still_clusters(still, stamp_ns, frame_id, config.still).boxes)
+
+
+def result_obstacles(result: SemanticFlow, config: ObstacleConfig, fallback_dt: float) -> SceneObstacles:
+    """The obstacles of a scan the fusion loop finished: moved by the flow estimator's ego motion that came with it,
+    or, where none came (a flow from elsewhere), by one fitted to its static flow over `fallback_dt`."""
+    if result.ego is None:
+        ego = weighted_kabsch(result.points, result.points + result.flow, 1.0 - result.segmentation.dynamic_prob)
+        dt = fallback_dt
+    else:
+        ego, dt = result.ego.transform, result.ego.dt
+    return scan_obstacles(result.points, result.flow, result.segmentation, ego, dt, result.stamp_ns, result.frame_id,
+                          config)
 
 
 def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmentation, ego: np.ndarray, dt: float,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from ssf_common.launch import GraphSpec, NodeSpec, _console_script
+from ssf_bringup.launcher import GraphSpec, NodeSpec, _console_script
 
 def package_of(executable: str) -> str:
     """The ament package that installs an executable (`pkg/executable`, or the package of its console script)."""

@@ -11,9 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from ssf_common import demo, messages
+from ssf_bringup import demo
+from ssf_bringup.cli import main
+from ssf_common import messages
 from ssf_common.bags.reader import open_bag
-from ssf_common.cli import main
 
 DURATION_S = 3.0
 STEPS = int(DURATION_S * 10)  # the scenario's dt is 0.1 s
@@ -27,7 +28,7 @@ def strict_loads(text: str):
 def demo_run(tmp_path_factory) -> tuple[subprocess.CompletedProcess, Path]:
     out = tmp_path_factory.mktemp("demo") / "run"
     result = subprocess.run(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--duration", str(DURATION_S), "--out", str(out),
+        [sys.executable, "-P", "-m", "ssf_bringup.cli", "demo", "--duration", str(DURATION_S), "--out", str(out),
          "--video", str(out.parent / "episode.gif"), "--foxglove", "0"],
         capture_output=True, text=True, timeout=240,
     )  # fmt: skip
@@ -180,7 +181,7 @@ def test_progress_says_simulated_time_against_the_wall_clock(tmp_path):
 
 
 def test_a_middleware_that_cannot_start_is_one_line_before_any_node_starts(tmp_path):
-    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--out", str(tmp_path / "out")],
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_bringup.cli", "demo", "--out", str(tmp_path / "out")],
                             capture_output=True, text=True, timeout=120, env={**os.environ, "ROS_DOMAIN_ID": "241"})
     assert result.returncode == 2 and result.stdout == ""
     (line,) = result.stderr.strip().splitlines()
@@ -224,7 +225,7 @@ def test_the_odometry_takes_the_commands_as_its_prior_only_when_they_drive(tmp_p
 def test_demo_in_real_time_records_commands(tmp_path):
     """`ssf demo --realtime`: the simulator at wall-clock rate, the planner's commands recorded."""
     out = tmp_path / "run"
-    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "demo", "--realtime", "--duration", "3",
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_bringup.cli", "demo", "--realtime", "--duration", "3",
                              "--out", str(out)], capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr[-4000:]
     assert "in real time" in result.stderr and "mode: realtime" in (out / "graph.yaml").read_text()

@@ -13,13 +13,12 @@ from importlib import metadata, resources
 from pathlib import Path
 from typing import Any, NamedTuple
 
+from ssf_bringup.launcher import GraphSpec, Launcher, NodeSpec, load_graph, with_viewer
 from ssf_common import config as config_lib
 from ssf_common.checks import require_finite, require_seed
 from ssf_common.errors import ConfigError, DataError, SsfError
 from ssf_common.jsonio import dumps_strict
-from ssf_common.launch import GraphSpec, Launcher, NodeSpec, load_graph
 from ssf_common.paths import check_writable_dir
-from ssf_common.viewer.command import with_viewer
 from ssf_common.viewer.server import ViewerConfig
 
 # What a recording holds by default: what a replay needs to run perception again (the scans, /tf, /clock), what a
@@ -111,7 +110,7 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, dr
                recording: Recording | None = None, realtime: bool = False) -> GraphSpec:
     """The shipped demo graph with this run's scenario, duration, recorded topics and output paths filled in, in
     lockstep or in real time (the episode picture is drawn from the recording afterwards, see `draw_episode`)."""
-    graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    graph = load_graph(Path(str(resources.files("ssf_bringup") / "graphs" / "demo.yaml")))
     recording = recording or Recording.chosen()
     nodes: list[NodeSpec] = []
     for node in graph.nodes:

@@ -1,15 +1,15 @@
-"""`ssf` commands of ssf_common: launch, demo, record, bag, bench transport, graph, faults."""
+"""`ssf` commands of the application: launch, demo, view, render, record, bag, bench transport, view, graph and faults."""
 
 from __future__ import annotations
 
 import argparse
 
-from ssf_common.cli import CommandGroups
+from ssf_common.command_groups import CommandGroups
 from ssf_common.viewer.command import add_foxglove_options
 
 
 def register(groups: CommandGroups) -> None:
-    """Add ssf_common's commands."""
+    """Add the application's commands (the library's own among them)."""
     from ssf_common.render import command as render
     from ssf_common.viewer import command as view
 
@@ -70,9 +70,9 @@ def _register_graph_commands(groups: CommandGroups) -> None:
 
 
 def _launch(args: argparse.Namespace) -> int:
+    from ssf_bringup.launcher import Launcher, load_graph, with_viewer
     from ssf_common.config import parse_overrides
-    from ssf_common.launch import Launcher, load_graph
-    from ssf_common.viewer.command import viewer_config, with_viewer
+    from ssf_common.viewer.command import viewer_config
 
     viewer = viewer_config(args, "ssf launch")
     graph = with_viewer(load_graph(args.graph, parse_overrides(args.param, "-p")), viewer)
@@ -93,7 +93,7 @@ def _demo(args: argparse.Namespace) -> int:
     import time
     from pathlib import Path
 
-    from ssf_common.demo import Recording, run_demo
+    from ssf_bringup.demo import Recording, run_demo
     from ssf_common.errors import ConfigError
     from ssf_common.viewer.command import viewer_config
 
@@ -118,8 +118,8 @@ def _register_bench_commands(groups: CommandGroups) -> None:
     transport.add_argument("--duration", type=float, default=20.0, help="seconds per cloud size (default 20)")
     transport.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
     transport.set_defaults(func=_bench_transport)
-    from ssf_common import bench_faults, bench_graph
-    from ssf_common.viewer import bench as view_bench
+    from ssf_bringup import bench_faults, bench_graph
+    from ssf_bringup import bench_view as view_bench
 
     view_bench.add_parser(groups.bench)
     bench_graph.add_parser(groups.bench)

@@ -22,11 +22,11 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ssf_bringup.bench_graph import Probe, bench_graph_spec, per_node_parameters
+from ssf_bringup.launcher import GraphSpec, Launcher
 from ssf_common import messages, topics
-from ssf_common.bench_graph import Probe, bench_graph_spec, node_parameters
 from ssf_common.diagnostics import Level, read_levels
 from ssf_common.errors import ConfigError
-from ssf_common.launch import GraphSpec, Launcher
 
 ONSET_LIMIT_S = 0.3  # the braking contract: onset at most this long after the last fresh input (simulated time)
 DECELERATION = 6.0  # m/s^2: how the planner brakes (its vehicle.max_decel, the simulated car's limit too)
@@ -299,7 +299,7 @@ def case_graph(case: FaultCase, scenario: str, parameters: dict[str, dict[str, A
     return graph.model_copy(update={"nodes": nodes})
 
 
-class Clock:
+class FaultClock:
     """The campaign's view of a running case: the drive, the newest truth, waiting on both with the launcher polled."""
 
     def __init__(self, launcher: Launcher, probe: FaultProbe, say: Any) -> None:
@@ -324,7 +324,7 @@ def run_case(case: FaultCase, scenario: str, parameters: dict[str, dict[str, Any
     launcher = Launcher(case_graph(case, scenario, parameters, timing), output=log or io.StringIO())
     probe = FaultProbe()
     injector = Injector(probe, case) if case.target == "obstacles" else None
-    clock = Clock(launcher, probe, say)
+    clock = FaultClock(launcher, probe, say)
     window: dict[str, float] = {}
     try:
         launcher.start()
@@ -373,7 +373,7 @@ def _inject(case: FaultCase, launcher: Launcher, injector: Injector | None) -> N
         injector.inject(case.fault)
 
 
-def _hold(case: FaultCase, clock: Clock, drive: int, timing: Timing) -> None:
+def _hold(case: FaultCase, clock: FaultClock, drive: int, timing: Timing) -> None:
     """Keep the fault (no restart) until the car has stood stood_s, or for the flood flood_s, or the dead simulator
     sim_down_wall_s."""
     probe = clock.probe
@@ -544,7 +544,7 @@ TABLE_HEAD = ("| case | speed at fault (m/s) | onset after last fresh input (s) 
 
 def bench_command(args: argparse.Namespace) -> int:
     """ssf bench faults."""
-    from ssf_common.demo import check_scenario
+    from ssf_bringup.demo import check_scenario
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable, check_writable_dir
 
@@ -558,7 +558,7 @@ def bench_command(args: argparse.Namespace) -> int:
         check_writable(args.json, "result file")
     if args.logs:
         check_writable_dir(args.logs, "log folder")
-    parameters = node_parameters(args.param)
+    parameters = per_node_parameters(args.param)
     bench_graph_spec(args.scenario, 1, parameters)  # unknown node names fail here, before any process
     records = []
     say = lambda text: print(text, file=sys.stderr, flush=True)  # noqa: E731 - progress, beside the table on stdout

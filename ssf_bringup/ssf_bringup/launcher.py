@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ctypes
-import json
 import math
 import os
 import signal
@@ -14,20 +13,23 @@ import time
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from pydantic import Field
 
 from ssf_common import config as config_lib
 from ssf_common.checks import require_finite
-from ssf_common.config import Section
+from ssf_common.config import Section, param_text
 from ssf_common.errors import ConfigError
 from ssf_common.middleware.params import params_file_sections
+from ssf_common.viewer.command import VIEWER_NODE
+
+if TYPE_CHECKING:
+    from ssf_common.viewer.server import ViewerConfig
 
 _PR_SET_PDEATHSIG = 1
 CONFIG_ERROR_EXIT = 2  # a node's answer to bad parameters or files: restarting cannot help
 _STOPPED_CODES = (0, 130, -signal.SIGINT)  # how a process ends when it was asked to stop
-_PLAIN_TEXT = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_-./~+= "
 # The child imports its entry point with SIGINT blocked (see _start_child): an interrupt inside a C
 # extension's import surfaces as an ImportError, not a KeyboardInterrupt. A Ctrl-C that arrived meanwhile
 # is delivered when the imports are done and ends the child quietly with 130.
@@ -137,24 +139,6 @@ def command_line(node: NodeSpec, global_parameters: dict[str, Any]) -> list[str]
     for name, value in node_parameters(node, global_parameters, node.name or node.executable).items():
         ros_args += ["-p", f"{name}:={param_text(value)}"]
     return argv + (["--ros-args", *ros_args] if ros_args else [])
-
-
-def param_text(value: Any) -> str:
-    """The YAML text that reads back as `value` (what `-p NAME:=TEXT` carries)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, float):
-        text = repr(value)
-        mantissa, _, exponent = text.partition("e")
-        return f"{mantissa}.0e{exponent}" if exponent and "." not in mantissa else text
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(param_text(item) for item in value) + "]"
-    if isinstance(value, str):
-        plain = value and value == value.strip() and all(char in _PLAIN_TEXT for char in value)
-        if plain and config_lib.load_yaml_text(value, "value") == value:
-            return value
-        return json.dumps(value)
-    return str(value)
 
 
 def _start_child() -> None:
@@ -337,3 +321,16 @@ class Launcher:
         for label, failure in self.failures:
             self._say("launch", f"{label} {failure}")
         return 1 if self.failures else 0
+
+
+def with_viewer(graph: GraphSpec, config: ViewerConfig | None) -> GraphSpec:
+    """The graph plus an `ssf view` process (unchanged without a config); the port is checked free first."""
+    if config is None:
+        return graph
+    from ssf_common.viewer.server import check_port_free
+
+    if config.port:
+        check_port_free(config.host, config.port)
+    viewer = NodeSpec(executable="ssf", name=VIEWER_NODE, ros_args=False, respawn=False,
+                      arguments=["view", "--port", str(config.port), "--host", config.host])
+    return graph.model_copy(update={"nodes": [*graph.nodes, viewer]})

@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from ssf_common.launch import command_line, load_graph
+from ssf_bringup.launcher import command_line, load_graph
 from ssf_common.middleware import Node
 from ssf_common.errors import ConfigError
 from support import wait_until
@@ -43,7 +43,7 @@ def start_node(executable: str, *ros_args: str) -> subprocess.Popen:
 
 
 def load_node_spec(executable: str):
-    from ssf_common.launch import NodeSpec
+    from ssf_bringup.launcher import NodeSpec
 
     return NodeSpec(executable=executable)
 
@@ -115,7 +115,7 @@ class Output:
 
 def launch(graph: Path, *args: str) -> tuple[subprocess.Popen, Output]:
     process = subprocess.Popen(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "launch", str(graph), *args],
+        [sys.executable, "-P", "-m", "ssf_bringup.cli", "launch", str(graph), *args],
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
         text=True,
@@ -240,7 +240,7 @@ def test_killed_launcher_leaves_no_orphans(tmp_path):
 
 @pytest.mark.parametrize("duration", ["-1", "0", "nan", "inf"])
 def test_launch_duration_must_be_a_positive_number(tmp_path, capsys, duration):
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     graph = write_graph(tmp_path, [{"executable": "ssf_seg_node"}])
     assert main(["launch", str(graph), "--duration", duration]) == 2
@@ -249,7 +249,7 @@ def test_launch_duration_must_be_a_positive_number(tmp_path, capsys, duration):
 
 
 def test_launch_param_overrides_use_the_one_syntax(tmp_path, capsys):
-    from ssf_common.cli import main
+    from ssf_bringup.cli import main
 
     graph = write_graph(tmp_path, [{"executable": "ssf_seg_node"}])
     assert load_graph(graph, {"report_period_s": 2.0}).global_parameters == {"report_period_s": 2.0}
@@ -323,7 +323,7 @@ def test_bad_graph_files_name_the_problem(tmp_path, content, message):
 
 def test_unknown_executable_is_a_clear_error(tmp_path):
     result = subprocess.run(
-        [sys.executable, "-P", "-m", "ssf_common.cli", "launch", str(write_graph(tmp_path, [{"executable": "no_such_node"}]))],
+        [sys.executable, "-P", "-m", "ssf_bringup.cli", "launch", str(write_graph(tmp_path, [{"executable": "no_such_node"}]))],
         capture_output=True,
         text=True,
         timeout=60,

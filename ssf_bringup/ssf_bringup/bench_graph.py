@@ -19,13 +19,13 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from ssf_bringup.demo import in_real_time
+from ssf_bringup.launcher import GraphSpec, Launcher, load_graph
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import parse_override
-from ssf_common.demo import in_real_time
 from ssf_common.diagnostics import read_status
 from ssf_common.errors import ConfigError
 from ssf_common.geometry.se3 import invert, yaw_of
-from ssf_common.launch import GraphSpec, Launcher, load_graph
 
 SAMPLE_PERIOD_S = 1.0
 WARMUP_S = 5.0  # the first seconds (imports, discovery, the first scans) are not counted
@@ -180,7 +180,7 @@ def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dic
                      mode: str = "realtime") -> GraphSpec:
     """The demo graph without its recorder, the simulator in real time (or lockstep, as the demo) driven by the planner
     (`episodes` drives back to back, 0: until stopped), with `parameters` set per node name."""
-    graph = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    graph = load_graph(Path(str(resources.files("ssf_bringup") / "graphs" / "demo.yaml")))
     graph = in_real_time(graph) if mode == "realtime" else graph
     parameters = parameters or {}
     nodes = []
@@ -200,7 +200,7 @@ def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dic
     return graph.model_copy(update={"nodes": nodes})
 
 
-def node_parameters(items: list[str]) -> dict[str, dict[str, Any]]:
+def per_node_parameters(items: list[str]) -> dict[str, dict[str, Any]]:
     """Per-node settings from `NODE:NAME:=VALUE` items, e.g. ssf_fusion_node:fusion.max_iterations:=1."""
     settings: dict[str, dict[str, Any]] = {}
     for item in items:
@@ -389,8 +389,8 @@ def format_bench(bench: GraphBench) -> str:
 
 def bench_command(args: argparse.Namespace) -> int:
     """ssf bench graph."""
+    from ssf_bringup.demo import check_scenario
     from ssf_common.checks import require_finite
-    from ssf_common.demo import check_scenario
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable
 
@@ -400,7 +400,7 @@ def bench_command(args: argparse.Namespace) -> int:
         check_writable(args.json, "result file")
     if args.episodes < 0:
         raise ConfigError(f"--episodes must be 0 (back to back until the duration is over) or more, got {args.episodes}")
-    parameters = node_parameters(args.param)
+    parameters = per_node_parameters(args.param)
     bench_graph_spec(args.scenario, args.episodes, parameters)  # unknown node names fail here, before any process
     print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
           file=sys.stderr)

@@ -8,23 +8,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from dataclasses import dataclass
 from importlib import metadata
 from typing import NoReturn, Sequence
 
+from ssf_bringup.commands import register
+from ssf_common.command_groups import CommandGroups
 from ssf_common.errors import SsfError
 
 COMMANDS_GROUP = "ssf.commands"
-
-
-@dataclass(frozen=True)
-class CommandGroups:
-    """Subparser groups that packages add their commands to."""
-
-    top: argparse._SubParsersAction
-    train: argparse._SubParsersAction
-    eval: argparse._SubParsersAction
-    bench: argparse._SubParsersAction
 
 
 class OneLineParser(argparse.ArgumentParser):
@@ -48,11 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
         eval=_group(top, "eval", "the paper's tables on simulator or recorded data, method beside method"),
         bench=_group(top, "bench", "speed and memory figures (medians, JSON with --json)"),
     )
-    from ssf_common.commands import register
-
-    register(groups)  # this package's own commands come first
+    register(groups)  # the application's own commands come first
     for entry in sorted(metadata.entry_points(group=COMMANDS_GROUP), key=lambda entry: entry.name):
-        if entry.value.startswith("ssf_common."):
+        if entry.value.startswith("ssf_bringup."):
             continue
         try:
             contribute = entry.load()

@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from ssf_bringup.bench_graph import Probe
 from ssf_common import topics
-from ssf_common.bench_graph import Probe
-from ssf_common.bench_faults import (Arrival, FaultCase, FaultRecord, StateSample, Timing, TruthSample, campaign,
+from ssf_bringup.bench_faults import (Arrival, FaultCase, FaultRecord, StateSample, Timing, TruthSample, campaign,
                                      case_graph, evaluate, format_row, run_case, select, verdict)
+from ssf_bringup.launcher import load_graph
 from ssf_common.diagnostics import Level
 from ssf_common.errors import ConfigError
-from ssf_common.launch import load_graph
 
 S = 1_000_000_000
 
@@ -43,7 +43,7 @@ def test_a_cases_graph_restarts_the_simulator_routes_obstacles_through_the_injec
     sim = node(lockstep, "sim_bridge")
     assert sim.parameters["mode"] == "lockstep" and not sim.required and sim.respawn
     assert sim.parameters["cmd_vel_timeout"] == 0.3 and sim.parameters["episodes"] == 1
-    demo = load_graph(Path(str(resources.files("ssf_common") / "graphs" / "demo.yaml")))
+    demo = load_graph(Path(str(resources.files("ssf_bringup") / "graphs" / "demo.yaml")))
     assert node(lockstep, "ssf_fusion_node").parameters == node(demo, "ssf_fusion_node").parameters  # as the demo
     arrays = case_graph(FaultCase("nan", "obstacles", "realtime", 1), "urban_100")
     assert node(arrays, "ssf_fusion_node").remappings == {"/ssf/obstacles": "/ssf/obstacles_feed"}

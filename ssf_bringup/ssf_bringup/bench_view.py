@@ -86,7 +86,7 @@ def run_bench(points: int, rate_hz: float, duration_s: float, say: Any) -> ViewB
     from ssf_common.bench_transport import BENCH_TOPIC, measure_latency, percentile
     from ssf_common.middleware import QOS_SENSOR_DATA, Node
 
-    viewer = subprocess.Popen([sys.executable, "-P", "-m", "ssf_common.cli", "view", "--port", "0"],
+    viewer = subprocess.Popen([sys.executable, "-P", "-m", "ssf_bringup.cli", "view", "--port", "0"],
                               stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     try:
         url = _announced_url(viewer)

@@ -7,8 +7,8 @@ import threading
 import numpy as np
 import pytest
 
+from ssf_bringup.bench_graph import GraphBench, Probe, bench_graph_spec, format_bench, latencies_ms, node_rows
 from ssf_common import messages
-from ssf_common.bench_graph import GraphBench, Probe, bench_graph_spec, format_bench, latencies_ms, node_rows
 from ssf_common.diagnostics import StageStats, read_status
 
 
@@ -91,20 +91,20 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
 
 
 def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
-    from ssf_common.bench_graph import node_parameters
-    from ssf_common.demo import REALTIME_LOOP_TIMEOUT_S
+    from ssf_bringup.bench_graph import per_node_parameters
+    from ssf_bringup.demo import REALTIME_LOOP_TIMEOUT_S
     from ssf_common.errors import ConfigError
 
     default = next(node for node in bench_graph_spec("urban_200", 1).nodes if node.name == "ssf_fusion_node")
     assert "fusion.max_iterations" not in default.parameters  # one iteration: the default, lockstep or real time
-    settings = node_parameters(["ssf_fusion_node:fusion.max_iterations:=3", "ssf_flow_node:estimator:=ego"])
+    settings = per_node_parameters(["ssf_fusion_node:fusion.max_iterations:=3", "ssf_flow_node:estimator:=ego"])
     assert settings == {"ssf_fusion_node": {"fusion.max_iterations": 3}, "ssf_flow_node": {"estimator": "ego"}}
     fusion = next(node for node in bench_graph_spec("urban_200", 1, settings).nodes if node.name == "ssf_fusion_node")
     assert fusion.parameters["fusion.max_iterations"] == 3 and fusion.parameters["timeout_s"] == REALTIME_LOOP_TIMEOUT_S == 0.15
     with pytest.raises(ConfigError, match="no node of that name"):
-        bench_graph_spec("urban_200", 1, node_parameters(["recorder:x:=1"]))
+        bench_graph_spec("urban_200", 1, per_node_parameters(["recorder:x:=1"]))
     with pytest.raises(ConfigError, match="NODE:NAME:=VALUE"):
-        node_parameters(["fusion.max_iterations:=1"])
+        per_node_parameters(["fusion.max_iterations:=1"])
 
 
 def test_a_drive_that_ended_early_is_said_with_its_outcome():
@@ -137,7 +137,7 @@ def test_drives_back_to_back_keep_the_first_outcome_and_count_every_drive():
 
 
 def test_odometry_is_scored_against_the_truth_of_the_first_drive():
-    from ssf_common.bench_graph import odometry_error
+    from ssf_bringup.bench_graph import odometry_error
     from ssf_common.conversions import odometry_to_msg
     from ssf_common.geometry.se3 import invert, make_pose
     from ssf_common.records import OdometryEstimate
@@ -169,7 +169,7 @@ def test_a_short_bench_graph_reports_cpu_per_scan_of_every_node(tmp_path):
     import sys
 
     out = tmp_path / "graph.json"
-    result = subprocess.run([sys.executable, "-P", "-m", "ssf_common.cli", "bench", "graph", "--duration", "5",
+    result = subprocess.run([sys.executable, "-P", "-m", "ssf_bringup.cli", "bench", "graph", "--duration", "5",
                              "--json", str(out)], capture_output=True, text=True, timeout=240)
     assert result.returncode == 0, result.stderr[-3000:]
     rows = {row["node"]: row for row in json.loads(out.read_text())["nodes"]}
