@@ -5,7 +5,9 @@ A point's `time` is seconds relative to its scan's header stamp (<= 0 where the 
 where it marks the start; the readers give either). The sensor's motion is given as the flow's ego motion over one
 period: the transform that maps static points of the frame at a stamp into the frame one period later, (L_T)^-1 L_0.
 At constant velocity the frame at time t relative to the stamp is reached by that motion raised to -t / period, so a
-point taken at t lies at motion^(-t / period) p in the stamp's frame (se3.interpolate_poses, a constant-twist motion)."""
+point taken at t lies at motion^(-t / period) p in the stamp's frame (se3.interpolate_poses, a constant-twist motion).
+Flow and odometry deskew with the motion along the ground only (`planar`): a car's height, roll and pitch follow the
+road's bumps, which change within a period and which no constant velocity predicts."""
 
 from __future__ import annotations
 
@@ -14,7 +16,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ssf_common.errors import DataError
-from ssf_common.geometry.se3 import interpolate_poses, invert
+from ssf_common.geometry.se3 import interpolate_poses, invert, make_pose, yaw_of
 
 STEPS = 4096  # shares of a period between the poses the points take: at 10 Hz and 30 m/s, 0.4 mm apart at most
 
@@ -63,6 +65,13 @@ def reskew(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: flo
     return _move(points, time, motion, period, back=True)
 
 
+def planar(motion: np.ndarray) -> np.ndarray:
+    """A sweep's motion along the ground (x, y, yaw): what constant velocity carries across a sweep. Height, roll and
+    pitch change with each bump of the road within a period and are left as the sweep took them."""
+    motion = np.asarray(motion, dtype=np.float64)
+    return make_pose(motion[0, 3], motion[1, 3], 0.0, yaw_of(motion))
+
+
 def _move(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: float, back: bool) -> np.ndarray:
     """Each point through motion^(-time / period), or its inverse (`back`); poses taken at STEPS shares a period."""
     points = np.asarray(points, dtype=np.float64)[:, :3]
@@ -79,4 +88,4 @@ def _move(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: floa
     return (np.einsum("nij,nj->ni", pose[:, :3, :3], points) + pose[:, :3, 3]).astype(np.float32)
 
 
-__all__ = ["PairTimes", "check_time", "deskew", "pair_times", "reskew", "timed"]
+__all__ = ["PairTimes", "check_time", "deskew", "pair_times", "planar", "reskew", "timed"]

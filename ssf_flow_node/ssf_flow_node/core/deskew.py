@@ -20,8 +20,8 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, yaw_of
-from ssf_common.geometry.sweep import PairTimes, check_time, deskew, reskew, timed
+from ssf_common.geometry.se3 import invert, rotation_angle
+from ssf_common.geometry.sweep import PairTimes, check_time, deskew, planar, reskew, timed
 from ssf_flow_node.core.base import FlowEstimator, FlowResult, fingerprint, get_ready
 from ssf_flow_node.core.preprocess import check_scan
 
@@ -117,19 +117,12 @@ class DeskewingEstimator:
         return self.scans[key]
 
 
-def planar(motion: np.ndarray) -> np.ndarray:
-    """The motion along the ground (x, y, yaw) of a sweep's motion: what constant velocity predicts across a sweep; a
-    bump's height and tilt change within a period and are left as the sweep took them."""
-    motion = np.asarray(motion, dtype=np.float64)
-    return make_pose(motion[0, 3], motion[1, 3], 0.0, yaw_of(motion))
-
-
 def beyond(ego: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """The motion over scan t+1's sweep from an ego motion fitted to it deskewed with `motion`, scan t deskewed
-    right: the fit lands about halfway between the two (a sweep's deskew error grows from nothing at the stamp to its
-    whole one period earlier, half of it on average), so its translation is taken as far again beyond `motion`."""
+    """The motion over scan t+1's sweep from the one fitted with that scan deskewed by `motion` (scan t deskewed
+    right): a sweep's deskew error grows from nothing at the stamp to its whole one period earlier, so the fit lands
+    about halfway, and its translation is taken as far again beyond `motion`."""
     corrected = np.array(ego, dtype=np.float64)
-    corrected[:3, 3] = 2.0 * ego[:3, 3] - motion[:3, 3]
+    corrected[:3, 3] = 2.0 * corrected[:3, 3] - np.asarray(motion, dtype=np.float64)[:3, 3]
     return corrected
 
 

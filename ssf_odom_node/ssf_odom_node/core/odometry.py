@@ -16,7 +16,7 @@ from ssf_common.config import Section
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import interpolate_poses, invert, rotation_angle, transform_points, yaw_matrix
-from ssf_common.geometry.sweep import check_time, deskew, timed
+from ssf_common.geometry.sweep import check_time, deskew, planar, timed
 from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
                                              normals_among, point_to_plane, steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap, above_ground
@@ -175,14 +175,14 @@ class Odometry:
                         alignment.rmse, source, len(self.map), len(registered))
 
     def deskewed(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray) -> np.ndarray:
-        """The scan in the sensor frame at its stamp: each point moved from its time by the motion over the sweep at
-        constant velocity (the predicted one, per scan period); as given without time, with deskew off, or on the
-        first scan (no motion known)."""
+        """The scan in the sensor frame at its stamp: each point moved from its time by the motion along the ground
+        over the sweep at constant velocity (the predicted one, per scan period); as given without time, with deskew
+        off, or on the first scan (no motion known)."""
         if not self.config.deskew or not timed(frame.time) or self.stamp_ns is None:
             return scan
         periods = self.elapsed(frame.stamp_ns) / self.config.scan_period
         later = interpolate_poses(self.pose, predicted, np.array([1.0 / periods]))[0]  # odom <- a period on
-        motion = invert(later) @ self.pose  # the flow's convention: a stamp's frame -> one period later
+        motion = planar(invert(later) @ self.pose)  # the flow's convention: a stamp's frame -> a period later
         return deskew(scan, check_time(frame.time, len(scan), "odometry: the scan's per-point time"), motion,
                       self.config.scan_period)
 

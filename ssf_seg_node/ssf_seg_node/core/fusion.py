@@ -299,7 +299,8 @@ class DistributedLoop:
         mask, flow = scan.masks[iteration], scan.flows[iteration]
         segmentation = Segmentation.from_probability(mask.dynamic_prob, mask.instance)
         result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, np.asarray(flow.flow, np.float32),
-                              segmentation, iterations=iteration + 1, converged=reason == "converged", ego=flow.ego)
+                              segmentation, iterations=iteration + 1, converged=reason == "converged", ego=flow.ego,
+                              time=flow.time)
         self.finished[reason] += 1
         self.scan = None
         return Finish(result, status, reason)
