@@ -62,15 +62,13 @@ class DeskewingEstimator:
         # 1. both scans at their stamps
         scan1, scan2, xyz1 = self.deskewed(pc1, pc2, sweeps)
         # 2. flow and ego motion between the stamps; where the ego motion found is not the one scan t+1 was deskewed
-        #    with (the vehicle changed its motion: a bump, braking), scan t+1 is deskewed again with it and the
-        #    estimate taken again (and so is scan t in a stream's first pair, whose sweep no pair has measured)
+        #    with (the vehicle braked or turned in), scan t+1 is deskewed again with it and the estimate taken again
+        #    (and so is scan t in a stream's first pair, whose sweep no pair has measured)
         result = self.estimator.estimate(scan1.points, scan2.points, mask)
         ego = planar(result.ego)
         if not settled(ego, scan2.motion):
             if scan1.swept is None:  # no pair measured scan t's sweep: both at this pair's motion
                 scan1 = self.store(scan1.key, xyz1, sweeps.time1, ego, sweeps.period)
-            else:
-                ego = beyond(ego, scan2.motion)
             scan2 = self.store(scan2.key, check_scan(pc2, "scan t+1"), sweeps.time2, ego, sweeps.period)
             result = self.estimator.estimate(scan1.points, scan2.points, mask)
             ego = planar(result.ego)
@@ -115,15 +113,6 @@ class DeskewingEstimator:
         self.scans[key] = Deskewed(key, deskew(xyz, check_time(time, len(xyz), "per-point time"), motion, period),
                                    motion)
         return self.scans[key]
-
-
-def beyond(ego: np.ndarray, motion: np.ndarray) -> np.ndarray:
-    """The motion over scan t+1's sweep from the one fitted with that scan deskewed by `motion` (scan t deskewed
-    right): a sweep's deskew error grows from nothing at the stamp to its whole one period earlier, so the fit lands
-    about halfway, and its translation is taken as far again beyond `motion`."""
-    corrected = np.array(ego, dtype=np.float64)
-    corrected[:3, 3] = 2.0 * corrected[:3, 3] - np.asarray(motion, dtype=np.float64)[:3, 3]
-    return corrected
 
 
 def settled(ego: np.ndarray, motion: np.ndarray) -> bool:
