@@ -1,13 +1,14 @@
 """Scene flow on sweeps that take their period to turn: both scans moved to their stamps, the flow estimated there, and
 each point's flow taken back to the time it was fired at.
 
-1. Deskew: every point of a scan is moved into the sensor frame at the scan's stamp by the ego motion interpolated
-   across its sweep (constant velocity: the last pair's ego motion; a scan seen first in a stream's first pair is
-   deskewed by the ego motion of that pair estimated on the raw scans). A scan is deskewed once, when it first comes,
-   so that scan t+1 of one pair is scan t of the next exactly (the estimator carries its motions across that link).
+1. Deskew: every point of a scan is moved into the sensor frame at the scan's stamp by the ego motion along the ground
+   (x, y, yaw) interpolated across its sweep at constant velocity: the last pair's ego motion. A scan is deskewed
+   when it first comes, so that scan t+1 of one pair is scan t of the next exactly (the estimator carries its motions
+   across that link); a stream's first pair is taken as it is, then deskewed by its own ego motion.
 2. Estimate on the deskewed scans: the ego motion and every cluster's own rigid motion between the two stamps; a
    moving cluster is fitted between two deskewed scans in which the same columns fired at the same times, so its
-   motion is its own over one period, whatever it did while the sensor turned.
+   motion is its own over one period, whatever it did while the sensor turned. Where the ego motion found is not the
+   one scan t+1 was deskewed with, that scan is deskewed again with it and the pair estimated again.
 3. Reskew: each point lands where its surface is one period after it was fired (the same column of the next sweep,
    in that column's sensor frame), which is how the flow of a raw point is defined (and the simulator's truth).
 Flow and ego motion are those between the two header stamps. Without per-point time, or with every time zero (instant

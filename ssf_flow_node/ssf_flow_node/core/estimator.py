@@ -40,8 +40,8 @@ class FlowConfig(Section):
 
     estimator: str = Field("rigid", description="zero | ego | rigid | asf")
     deskew: bool = Field(True, description="where the scans' points carry time (a sweep that takes its period to "
-                         "turn), move them to their stamps by the ego motion interpolated across the sweep before the "
-                         "estimate, and each point's flow back to its time after it (core/deskew.py); scans without "
+                         "turn), move them to their stamps by the ego motion along the ground interpolated across the "
+                         "sweep before the estimate, and each point's flow back to its time after it (core/deskew.py); scans without "
                          "time, or all of it zero, are estimated as given either way")
     preprocess: PreprocessConfig = PreprocessConfig()
     registration: RegistrationConfig = RegistrationConfig()
