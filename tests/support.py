@@ -1,7 +1,9 @@
-"""Helpers shared by tests: ROS 2 types written by hand from the IDL (no project code), and polling."""
+"""Helpers shared by tests: ROS 2 types written by hand from the IDL (no project code), polling, and swept scans."""
 
 import time
 from dataclasses import dataclass
+
+import numpy as np
 
 from cyclonedds.idl import IdlStruct
 from cyclonedds.idl import types as idl
@@ -62,3 +64,32 @@ def wait_until(predicate, timeout_s: float = 20.0) -> bool:
     while time.monotonic() < deadline and not predicate():
         time.sleep(0.02)
     return bool(predicate())
+
+
+SWEEP_PERIOD, SWEEP_SPEED = 0.1, 10.0  # s, m/s: a swept sensor drives 1 m while it turns
+
+
+def azimuth_times(xyz: np.ndarray) -> np.ndarray:
+    """Firing times (s, <= 0, stamp at the sweep's end) of points by azimuth: clockwise from behind."""
+    share = np.mod(np.pi - np.arctan2(xyz[:, 1], xyz[:, 0]), 2 * np.pi) / (2 * np.pi)  # 0 behind, growing clockwise
+    return ((share - 1.0) * SWEEP_PERIOD).astype(np.float32)
+
+
+def swept(world: np.ndarray, stamp_x: float) -> tuple[np.ndarray, np.ndarray]:
+    """A sweep of static world points by a sensor driving along x at SWEEP_SPEED, at stamp_x at its stamp: each point
+    in the sensor frame of its firing time, and that time."""
+    times = azimuth_times(world - [stamp_x, 0, 0])
+    for _ in range(3):  # the azimuth a point is seen at depends on where the sensor is then
+        times = azimuth_times(world - np.c_[stamp_x + SWEEP_SPEED * times, np.zeros((len(world), 2))])
+    return (world - np.c_[stamp_x + SWEEP_SPEED * times, np.zeros((len(world), 2))]).astype(np.float32), times
+
+
+def swept_pair(seed: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Two consecutive sweeps (points and times) of a street (ground, two facades and an end wall) by a sensor driving
+    along it at SWEEP_SPEED."""
+    rng = np.random.default_rng(seed)
+    world = np.vstack([np.c_[rng.uniform(-30, 30, (3000, 2)), rng.normal(-1.7, 0.02, 3000)],
+                       np.c_[rng.uniform(-30, 30, 1500), np.full(1500, 8.0), rng.uniform(-1.7, 3, 1500)],
+                       np.c_[np.full(1500, 25.0), rng.uniform(-8, 8, 1500), rng.uniform(-1.7, 3, 1500)],
+                       np.c_[rng.uniform(-30, 30, 1500), np.full(1500, -9.0), rng.uniform(-1.7, 3, 1500)]])
+    return swept(world, 0.0), swept(world, SWEEP_SPEED * SWEEP_PERIOD)

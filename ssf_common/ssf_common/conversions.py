@@ -53,13 +53,30 @@ def _probabilities(values: np.ndarray, what: str) -> np.ndarray:
     return prob
 
 
+def _time_fields(time: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The `time` field (float32 s relative to the stamp, as velodyne_pointcloud writes it) where a sweep has time."""
+    return {} if time is None else {"time": np.asarray(time, dtype=np.float32)}
+
+
+def _time_of(points: np.ndarray, what: str) -> np.ndarray | None:
+    """The `time` field of one of our clouds (None without one)."""
+    if "time" not in (points.dtype.names or ()):
+        return None
+    time = np.asarray(points["time"], dtype=np.float32)
+    if not np.isfinite(time).all():
+        raise MessageError(f"{what} has NaN/Inf per-point times")
+    return time
+
+
 def scene_flow_to_cloud(flow: SceneFlow) -> Any:
     """/ssf/flow: x y z flow_x flow_y flow_z iteration (constant per point) prior (the dynamic probability the flow
-    was conditioned on; 0 without one). Its ego motion travels on /ssf/ego_motion (`ego_motion_to_msg`)."""
+    was conditioned on; 0 without one), and time where the scan's points carry it. Its ego motion travels on
+    /ssf/ego_motion (`ego_motion_to_msg`)."""
     prior = np.zeros(len(flow.points), np.float32) if flow.prior is None else np.asarray(flow.prior, np.float32)
     return xyz_to_cloud(flow.points, messages.header(flow.stamp_ns, flow.frame_id),
                         flow_x=flow.flow[:, 0], flow_y=flow.flow[:, 1], flow_z=flow.flow[:, 2],
-                        iteration=np.full(len(flow.points), flow.iteration, dtype=np.uint32), prior=prior)
+                        iteration=np.full(len(flow.points), flow.iteration, dtype=np.uint32), prior=prior,
+                        **_time_fields(flow.time))
 
 
 def scene_flow_from_cloud(msg: Any) -> SceneFlow:
@@ -67,7 +84,7 @@ def scene_flow_from_cloud(msg: Any) -> SceneFlow:
     points, xyz = _finite_xyz(msg, "flow cloud")
     prior = _probabilities(points["prior"], "flow cloud prior") if "prior" in (points.dtype.names or ()) else None
     return SceneFlow(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz, _flow_of(points, "flow cloud"),
-                     _iteration_of(points), prior)
+                     _iteration_of(points), prior, time=_time_of(points, "flow cloud"))
 
 
 def ego_motion_to_msg(ego: EgoMotion) -> Any:
@@ -143,7 +160,8 @@ def semantic_flow_to_cloud(result: SemanticFlow) -> Any:
                         flow_x=result.flow[:, 0], flow_y=result.flow[:, 1], flow_z=result.flow[:, 2],
                         label=np.asarray(seg.label, dtype=np.uint8), instance=np.asarray(seg.instance, dtype=np.int32),
                         prob=np.asarray(seg.dynamic_prob, dtype=np.float32),
-                        iteration=np.full(len(result.points), result.iterations - 1, dtype=np.uint32))
+                        iteration=np.full(len(result.points), result.iterations - 1, dtype=np.uint32),
+                        **_time_fields(result.time))
 
 
 def semantic_flow_from_cloud(msg: Any) -> SemanticFlow:
@@ -156,7 +174,8 @@ def semantic_flow_from_cloud(msg: Any) -> SemanticFlow:
     segmentation = Segmentation(_probabilities(points["prob"], "semantic flow cloud prob"), label,
                                 np.asarray(points["instance"], dtype=np.int32))
     return SemanticFlow(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, xyz,
-                        _flow_of(points, "semantic flow cloud"), segmentation, iterations=_iteration_of(points) + 1)
+                        _flow_of(points, "semantic flow cloud"), segmentation, iterations=_iteration_of(points) + 1,
+                        time=_time_of(points, "semantic flow cloud"))
 
 
 def obstacles_to_msg(obstacles: Obstacles) -> Any:

@@ -67,6 +67,7 @@ class SceneFlow:
     iteration: int = 0  # the fusion iteration this flow answers
     prior: np.ndarray | None = None  # (N,) float32: the dynamic probability M^(i) the flow was conditioned on (None: none)
     ego: EgoMotion | None = None  # the ego motion found with it (None: not known)
+    time: np.ndarray | None = None  # (N,) float32 each point's time, s relative to the stamp (None: an instant sweep)
 
     def __len__(self) -> int:
         return len(self.points)
@@ -140,6 +141,7 @@ class SemanticFlow:
     iterations: int = 1  # flow/segmentation rounds it took
     converged: bool = True  # False when it stopped on N_iter or a timeout
     ego: EgoMotion | None = None  # the flow estimator's ego motion of the flow it answers with (None: not known)
+    time: np.ndarray | None = None  # (N,) float32 each point's time, s relative to the stamp (None: an instant sweep)
 
     def __len__(self) -> int:
         return len(self.points)

@@ -16,6 +16,7 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.geometry.sweep import pair_times
 from ssf_common.records import EgoMotion, Obstacles, PriorSource
 from ssf_common.temporal_prior import carry_prior, prior_source
 from ssf_flow_node.core.estimator import FlowConfig, make_estimator
@@ -73,20 +74,23 @@ class PerceptionChain:
         self.source = None
 
     def perceive(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None, stamp_ns: int = 0,
-                 frame_id: str = "sensor", follows: bool = False, next_stamp_ns: int | None = None) -> ScanPerception:
+                 frame_id: str = "sensor", follows: bool = False, next_stamp_ns: int | None = None,
+                 time1: np.ndarray | None = None, time2: np.ndarray | None = None) -> ScanPerception:
         """Semantic scene flow and obstacles of scan t (pc1) towards scan t+1 (pc2). follows: pc1 is the scan the
         previous call's pc2 was, so that call's segmentation, carried by its flow, is the preliminary mask M^(0)
-        (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.dt."""
+        (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.dt.
+        time1, time2: each point's time (s relative to its scan's stamp), where the sweeps took their period to turn:
+        the flow deskews with them (flow.deskew), as the flow node does."""
         radius = self.config.fusion.prior_radius
         started = time.process_time()
+        dt = self.config.dt if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
         # 1. the temporal prior: the previous scan's segmentation carried onto this one
         if mask is None and follows and self.source is not None:
             mask = carry_prior(self.source, pc1)
         carried = time.process_time()
         # 2. flow with its ego motion ⇄ segmentation, until they agree
-        fusion = self.loop.run(pc1, pc2, mask)
+        fusion = self.loop.run(pc1, pc2, mask, pair_times(time1, time2, dt))
         looped = time.process_time()
-        dt = self.config.dt if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
         ego = EgoMotion(stamp_ns, stamp_ns + int(round(dt * 1e9)), frame_id, fusion.ego, fusion.iterations - 1)
         # 3. the obstacles: moving instances with their velocities, the still part as boxes
         found = scan_obstacles(pc1, fusion.flow, fusion.segmentation, fusion.ego, ego.dt, stamp_ns, frame_id,

@@ -71,14 +71,15 @@ def run_estimate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ssf_common.paths import check_writable, save_npy
-    from ssf_common.scans import read_scan
+    from ssf_common.geometry.sweep import pair_times
+    from ssf_common.scans import read_scan_with_time
     from ssf_flow_node.core.estimator import make_estimator
 
     check_writable(args.out, "flow file")
     estimator = make_estimator(args.estimator, flow_config(args, whole_scans=True), device=args.device)
-    pc1, pc2 = read_scan(args.pc1), read_scan(args.pc2)
+    (pc1, time1), (pc2, time2) = read_scan_with_time(args.pc1), read_scan_with_time(args.pc2)
     mask = read_mask(args.mask, pc1.shape[0]) if args.mask else None
-    result = estimator.estimate(pc1, pc2, mask)
+    result = estimator.estimate(pc1, pc2, mask, pair_times(time1, time2, 0.1))  # KITTI's and most drivers' 10 Hz
     save_npy(args.out, result.flow)
     speed = np.linalg.norm(result.flow, axis=1)
     print(f"{estimator.name}: {len(result.flow)} points, flow |median| {np.median(speed):.3f} m, max {speed.max():.3f} m, "

@@ -14,13 +14,13 @@ import numpy as np
 from ssf_common import messages, topics
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import ego_motion_to_msg, mask_from_cloud, prior_from_cloud, scene_flow_to_cloud
+from ssf_common.geometry.sweep import pair_times
 from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node, run
 from ssf_common.pointcloud import decode_cloud
 from ssf_common.records import EgoMotion, PriorSource, SceneFlow
 from ssf_common.stamps import SensorPeriod
 from ssf_common.temporal_prior import carry_prior
 from ssf_common.worker import LatestWorker
-from ssf_flow_node.core.base import get_ready
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 
 SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
@@ -34,6 +34,7 @@ class ReceivedScan:
     stamp_ns: int
     frame_id: str
     xyz: np.ndarray
+    time: np.ndarray | None = None  # each point's time, s relative to the stamp (None: none, or an instant sweep)
 
 
 @dataclass(frozen=True)
@@ -78,7 +79,12 @@ class FlowNode(Node):
         decoded = self.decoded(decode_cloud, msg, topics.LIDAR_POINTS)
         if decoded is None:
             return
-        scan = ReceivedScan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz))
+        if decoded.time_problem:  # said once: every scan of a driver writes its time alike
+            self.stats.count("scans_with_unusable_time")
+            if self.stats.counts["scans_with_unusable_time"] == 1:
+                self.get_logger().warning(f"{topics.LIDAR_POINTS}: {decoded.time_problem}; scans are not deskewed")
+        scan = ReceivedScan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz),
+                            decoded.time)
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
@@ -150,16 +156,18 @@ class FlowNode(Node):
 
     def _estimate(self, _kind: str, job: FlowJob) -> None:
         start = time.perf_counter()
+        sweeps = pair_times(job.scan.time, job.next_scan.time, (job.next_scan.stamp_ns - job.scan.stamp_ns) * 1e-9)
         if job.iteration == 0:  # the work that needs no mask first: meanwhile the scan before may finish
-            get_ready(self.estimator, job.scan.xyz, job.next_scan.xyz)
+            self.estimator.get_ready(job.scan.xyz, job.next_scan.xyz, sweeps)
         mask = self.temporal_prior(job.scan) if job.iteration == 0 else job.mask
-        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask)
+        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask, sweeps)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
         self.stats.record(self._compute_ms[-1], "estimates")
         ego = EgoMotion(job.scan.stamp_ns, job.next_scan.stamp_ns, job.scan.frame_id, result.ego, job.iteration)
         self.ego_pub.publish(ego_motion_to_msg(ego))  # first: it is small, and the flow's readers wait for it
         self.flow_pub.publish(scene_flow_to_cloud(SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz,
-                                                            result.flow, job.iteration, mask, ego)))
+                                                            result.flow, job.iteration, mask, ego,
+                                                            job.scan.time if sweeps is not None else None)))
         if job.iteration == 0:
             with self.prior_came:
                 self.answered = job.scan.stamp_ns

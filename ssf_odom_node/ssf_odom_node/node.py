@@ -120,7 +120,8 @@ class OdomNode(Node):
             return
         self.sensor_frame = result.frame_id
         self.matcher.add_main((result.stamp_ns, result.iterations - 1), OdomInput(
-            result.stamp_ns, result.points, result.flow, result.segmentation.dynamic_prob), time.monotonic())
+            result.stamp_ns, result.points, result.flow, result.segmentation.dynamic_prob, time=result.time),
+            time.monotonic())
 
     def on_flow(self, msg: Any) -> None:
         """Keep a flow until the mask of its scan arrives."""
@@ -143,7 +144,8 @@ class OdomNode(Node):
             return
         self.sensor_frame = flow.frame_id
         self.matcher.add_main((flow.stamp_ns, flow.iteration), OdomInput(flow.stamp_ns, flow.points, flow.flow,
-                                                                         mask.dynamic_prob), time.monotonic())
+                                                                         mask.dynamic_prob, time=flow.time),
+                              time.monotonic())
 
     def on_ego_motion(self, msg: Any) -> None:
         """Match the flow estimator's ego motion with the scan it belongs to."""

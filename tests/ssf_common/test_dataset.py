@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -21,8 +23,12 @@ def pair():
 
 
 @pytest.mark.parametrize("with_mask", [False, True])
-def test_pair_round_trip_is_exact(tmp_path, pair, with_mask):
+@pytest.mark.parametrize("swept", [False, True])
+def test_pair_round_trip_is_exact(tmp_path, pair, with_mask, swept):
     original = pair.with_mask(np.linspace(0, 1, len(pair.pc1))) if with_mask else pair
+    if swept:  # a rolling-shutter sweep's per-point time
+        original = replace(original, time1=np.linspace(-0.1, 0, len(pair.pc1), dtype=np.float32),
+                           time2=np.linspace(-0.1, 0, len(pair.pc2), dtype=np.float32))
     back = read_pair(write_pair(tmp_path / "p.npz", original))
     for key in PAIR_KEYS:
         a, b = getattr(original, key), getattr(back, key)
@@ -77,6 +83,9 @@ def test_readers_reject_bad_files_in_one_line(tmp_path, pair):
         read_pair(broken)
     np.savez(broken, pc1=np.zeros((2, 3)), pc2=np.zeros((5, 3)), flow=np.zeros((2, 3)), mask1=np.array([0.5, 2.0]))
     with pytest.raises(DataError, match="mask1"):
+        read_pair(broken)
+    np.savez(broken, pc1=np.zeros((2, 3)), pc2=np.zeros((5, 3)), flow=np.zeros((2, 3)), time2=np.zeros(4, np.float32))
+    with pytest.raises(DataError, match="'time2' has 4 values for 5 points of pc2"):
         read_pair(broken)
     broken.write_bytes(b"PK\x03\x04 not really a zip")
     with pytest.raises(DataError, match="not a readable .npz pair"):

@@ -122,3 +122,19 @@ def test_no_flow_across_a_lost_scan(graph):
     time.sleep(0.5)
     assert [messages.stamp_ns(msg.header.stamp) for msg in received] == [1_000_000_000, 1_300_000_000]
     assert flow_node.stats.counts["pairs_skipped_after_a_lost_scan"] == 1
+
+
+def test_a_rolling_shutter_pair_through_the_flow_node(graph):
+    from support import SWEEP_PERIOD as PERIOD, SWEEP_SPEED as SPEED, swept_pair
+
+    _flow_node, scans, _hints, received = graph
+    (pc1, time1), (pc2, time2) = swept_pair(0)
+    scans.publish(xyz_to_cloud(pc1, messages.header(1_000_000_000, "lidar"), time=time1))
+    time.sleep(0.1)
+    scans.publish(xyz_to_cloud(pc2, messages.header(1_100_000_000, "lidar"), time=time2))
+    assert wait_until(lambda: len(received) >= 1, timeout_s=60.0)
+    cloud = cloud_to_array(received[0])
+    np.testing.assert_array_equal(cloud["time"], time1)  # the per-point time passed on
+    flow = np.stack([cloud[name] for name in ("flow_x", "flow_y", "flow_z")], axis=1)
+    # at constant velocity every raw point of the static street moves by the ego motion between the stamps
+    assert np.median(np.linalg.norm(flow - [-SPEED * PERIOD, 0.0, 0.0], axis=1)) < 0.02

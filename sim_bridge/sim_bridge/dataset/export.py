@@ -18,6 +18,7 @@ from ssf_common.dataset.pairs import PointClass, ScanPair, boxes_from_obstacles,
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.sampling import Sampling, sample_indices
 from ssf_common.geometry.se3 import invert
+from ssf_common.geometry.sweep import timed
 
 class PairProtocol(Section):
     """How a pair is cut from two full scans: range crop, ground removal, then N points per scan."""
@@ -101,6 +102,7 @@ def _pairs_of(frames: Iterator[Frame], seed: int, protocol: PairProtocol) -> Ite
     for frame in frames:
         rng = np.random.default_rng([seed, 4, previous.index])
         first, second = cut_points(previous, protocol, rng), cut_points(frame, protocol, rng)
+        swept = timed(previous.scan.time) or timed(frame.scan.time)  # instant sweeps' pairs carry no time
         pair = make_pair(
             pc1=previous.scan.points[first],
             pc2=frame.scan.points[second],
@@ -111,6 +113,8 @@ def _pairs_of(frames: Iterator[Frame], seed: int, protocol: PairProtocol) -> Ite
             pose1=previous.pose.copy(),
             pose2=frame.pose.copy(),
             boxes1=visible_boxes(previous),
+            time1=previous.scan.time[first] if swept else None,
+            time2=frame.scan.time[second] if swept else None,
         )
         yield pair, previous, frame
         previous = frame
@@ -183,6 +187,8 @@ def export(
             "pose2": "float64 4x4 world <- sensor at t+1",
             "boxes1": "float64 (M,12) agents the scan at t hits, in its sensor frame: id kind x y z length width "
             "height yaw vx vy vz (centre at half height, velocity in m/s)",
+            "time1": "float32 (N,) each point's time, s relative to scan t's stamp (rolling-shutter sweeps only)",
+            "time2": "float32 (M,) the same for scan t+1",
         },
         "sequence": "velodyne/NNNNNN.bin float32 x,y,z,intensity (full scans); poses.txt: KITTI 3x4 rows, "
         "sensor poses relative to the first scan",

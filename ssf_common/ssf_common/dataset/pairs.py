@@ -46,6 +46,8 @@ class ScanPair:
     pose2: np.ndarray  # (4, 4) float64, world <- sensor at t+1
     mask1: np.ndarray | None = None  # (N,) float32 dynamic probability from a segmentation, when one was stored
     boxes1: np.ndarray | None = None  # (M, 11) float64 true objects at t in scan t's frame: BOX_COLUMNS
+    time1: np.ndarray | None = None  # (N,) float32 each point's time, s relative to scan t's stamp (None: instant)
+    time2: np.ndarray | None = None  # (M,) float32 the same for scan t+1
 
     @property
     def objects1(self) -> Obstacles | None:
@@ -86,8 +88,9 @@ PAIR_KEYS = tuple(field.name for field in fields(ScanPair))
 def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.ndarray | None = None,
               instance1: np.ndarray | None = None, class1: np.ndarray | None = None, pose1: np.ndarray | None = None,
               pose2: np.ndarray | None = None, mask1: np.ndarray | None = None,
-              boxes1: np.ndarray | None = None) -> ScanPair:
-    """A ScanPair with canonical dtypes; missing labels are static, unknown class, identity poses."""
+              boxes1: np.ndarray | None = None, time1: np.ndarray | None = None,
+              time2: np.ndarray | None = None) -> ScanPair:
+    """A ScanPair with canonical dtypes; missing labels are static, unknown class, identity poses, instant sweeps."""
     pc1 = np.ascontiguousarray(np.asarray(pc1)[:, :3], dtype=np.float32)
     count = pc1.shape[0]
     return ScanPair(
@@ -101,6 +104,8 @@ def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.n
         pose2=np.eye(4) if pose2 is None else np.asarray(pose2, dtype=np.float64),
         mask1=None if mask1 is None else np.asarray(mask1, dtype=np.float32),
         boxes1=None if boxes1 is None else np.asarray(boxes1, dtype=np.float64).reshape(-1, len(BOX_COLUMNS)),
+        time1=None if time1 is None else np.asarray(time1, dtype=np.float32).reshape(-1),
+        time2=None if time2 is None else np.asarray(time2, dtype=np.float32).reshape(-1),
     )
 
 
@@ -117,8 +122,9 @@ def write_pair(path: str | Path, pair: ScanPair) -> Path:
 
 
 _SHAPES = {"pc1": ("N", 3), "pc2": (None, 3), "flow": ("N", 3), "dynamic1": ("N",), "instance1": ("N",),
-           "class1": ("N",), "pose1": (4, 4), "pose2": (4, 4), "mask1": ("N",), "boxes1": (None, len(BOX_COLUMNS))}
-_KINDS = {"pc1": "f", "pc2": "f", "flow": "f", "pose1": "f", "pose2": "f", "mask1": "f", "boxes1": "f",
+           "class1": ("N",), "pose1": (4, 4), "pose2": (4, 4), "mask1": ("N",), "boxes1": (None, len(BOX_COLUMNS)),
+           "time1": ("N",), "time2": (None,)}
+_KINDS = {"pc1": "f", "pc2": "f", "flow": "f", "pose1": "f", "pose2": "f", "mask1": "f", "boxes1": "f", "time1": "f", "time2": "f",
           "dynamic1": "biu", "instance1": "iu", "class1": "iu"}
 
 
@@ -147,6 +153,8 @@ def read_pair(path: str | Path) -> ScanPair:
             raise DataError(f"{path}: '{key}' has shape {array.shape}, expected {expected} with N = {count}")
         if array.dtype.kind == "f" and not np.isfinite(array).all():
             raise DataError(f"{path}: '{key}' holds NaN or Inf")
+    if "time2" in arrays and len(arrays["time2"]) != len(arrays["pc2"]):
+        raise DataError(f"{path}: 'time2' has {len(arrays['time2'])} values for {len(arrays['pc2'])} points of pc2")
     mask = arrays.get("mask1")
     if mask is not None and (mask.min(initial=0.0) < 0.0 or mask.max(initial=0.0) > 1.0):
         raise DataError(f"{path}: 'mask1' must hold probabilities in [0, 1]")

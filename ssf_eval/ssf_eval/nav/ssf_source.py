@@ -33,6 +33,7 @@ class PerceivedPair(NamedTuple):
     stamp_ns: int
     points: np.ndarray  # (N, 3) the previous scan, sensor frame
     seen: ScanPerception
+    time: np.ndarray | None = None  # (N,) each point's time, s relative to its stamp (None: an instant sweep)
 
 
 class ConsecutiveScans:
@@ -43,7 +44,7 @@ class ConsecutiveScans:
         self.pipeline = PerceptionChain(config or whole_scan_config(), device)
         self.every = every
         self._added = 0  # scans added so far
-        self._newest: tuple[int, np.ndarray] | None = None
+        self._newest: tuple[int, np.ndarray, np.ndarray | None] | None = None
         self._pair: PerceivedPair | None = None
         self.iterations: list[int] = []
 
@@ -52,19 +53,20 @@ class ConsecutiveScans:
         """The pair perceived for the newest scan (None before the second scan)."""
         return self._pair
 
-    def add(self, stamp_ns: int, points: np.ndarray) -> PerceivedPair | None:
-        """The previous scan perceived towards this one (None for the first scan); a scan added twice runs once."""
+    def add(self, stamp_ns: int, points: np.ndarray, time: np.ndarray | None = None) -> PerceivedPair | None:
+        """The previous scan perceived towards this one (None for the first scan); a scan added twice runs once.
+        time: each point's (s relative to the stamp), where the sweep took its period to turn."""
         if self._newest is not None and self._newest[0] == stamp_ns:
             return self._pair
-        previous, self._newest = self._newest, (stamp_ns, np.ascontiguousarray(points[:, :3], dtype=np.float32))
+        previous, self._newest = self._newest, (stamp_ns, np.ascontiguousarray(points[:, :3], dtype=np.float32), time)
         index, self._added = self._added, self._added + 1
         if previous is None or index % self.every:  # the first scan, or one a busy graph drops
             self._pair = None
             return None
         seen = self.pipeline.perceive(previous[1], self._newest[1], stamp_ns=previous[0], frame_id="lidar", follows=True,
-                                      next_stamp_ns=stamp_ns)
+                                      next_stamp_ns=stamp_ns, time1=previous[2], time2=time)
         self.iterations.append(seen.fusion.iterations)
-        self._pair = PerceivedPair(previous[0], previous[1], seen)
+        self._pair = PerceivedPair(previous[0], previous[1], seen, previous[2])
         return self._pair
 
 
@@ -87,7 +89,7 @@ class SsfPerception:
     def observe(self, observation: Observation) -> Obstacles:
         """Obstacles of the previous scan (stamped then), from its flow towards this scan."""
         frame = observation.frame
-        pair = self.scans.add(frame.stamp_ns, frame.scan.points)
+        pair = self.scans.add(frame.stamp_ns, frame.scan.points, frame.scan.time)
         pose1, self._previous_pose = self._previous_pose, observation.lidar_pose
         if pair is None or pose1 is None:
             return Obstacles.empty(frame.stamp_ns, ODOM_FRAME)
@@ -110,10 +112,11 @@ class SsfPose:
         self.speed = 0.0  # forward speed (m/s) at the newest answered scan: its flow's motion ahead (else the twist)
         self.motion = np.eye(4)  # lidar(previous scan) <- lidar(this scan) over the last period
 
-    def update(self, stamp_ns: int, points: np.ndarray, commands: Sequence[tuple[int, Any]] = ()) -> np.ndarray:
+    def update(self, stamp_ns: int, points: np.ndarray, commands: Sequence[tuple[int, Any]] = (),
+               time: np.ndarray | None = None) -> np.ndarray:
         """odom <- lidar at this scan: the previous scan's odometry pose carried forward by its flow; `commands`
-        (stamp, command with linear and angular) are those sent so far."""
-        pair = self.scans.add(stamp_ns, points)
+        (stamp, command with linear and angular) are those sent so far; `time` each point's (None: an instant sweep)."""
+        pair = self.scans.add(stamp_ns, points, time)
         if pair is None:
             if self.odometry.steps:  # no answer for this scan: on by the last period's motion
                 self.lidar_pose = self.lidar_pose @ self.motion
@@ -122,7 +125,7 @@ class SsfPose:
         prior = command_prior([(stamp, command.linear, command.angular) for stamp, command in commands],
                               self.odometry.stamp_ns, pair.stamp_ns, self.speed, self.limits, self.mount)
         step = self.odometry.step(OdomInput(pair.stamp_ns, pair.points, fusion.flow, fusion.segmentation.dynamic_prob,
-                                            prior, ego=fusion.ego))
+                                            prior, ego=fusion.ego, time=pair.time))
         ahead = np.eye(4) if step.next_motion is None else invert(step.next_motion)
         self.motion = ahead
         self.lidar_pose = self.mount @ step.pose @ ahead

@@ -45,6 +45,9 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--scenario", "--scenarios", dest="scenarios", nargs="+", default=list(DENSITIES), metavar="NAME",
                           help=f"scenarios (default: {' '.join(DENSITIES)})")
     evaluate.add_argument("--agents", type=int, help="override every scenario's agent count")
+    evaluate.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
+                          help="scenario setting of every simulated drive, e.g. --sim-param lidar.rolling_shutter:=true "
+                          "(repeatable)")
     evaluate.add_argument("--seed", type=int, default=0, help="simulator seed (default 0; tuning used 10-19)")
     evaluate.add_argument("--frames", type=int, default=300, help="scans per scenario (default 300: 30 s of driving)")
     evaluate.add_argument("--warmup", type=float, default=2.0, metavar="S", help="simulated seconds before the first scan")
@@ -146,7 +149,7 @@ def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: 
     maskless = None
     if plain:  # the loop's estimator answers the graph's questions only; the stand-in masks' one asks both
         maskless = make_estimator(config.flow.estimator, config.flow) if segmented else estimator
-    return OdomPerception(OdomMaskSource(masks), estimator, pipeline if segmented else None, seed, maskless)
+    return OdomPerception(OdomMaskSource(masks), estimator, pipeline if segmented else None, seed, maskless, config.dt)
 
 
 def format_table(results: dict) -> str:
@@ -216,6 +219,7 @@ def run_eval(args: argparse.Namespace) -> int:
     from ssf_common.errors import ConfigError
     from ssf_common.paths import check_writable, check_writable_dir
     from ssf_eval.odom.evaluate import run_sequence
+    from sim_bridge.scenario import overrides_from_pairs
     from ssf_eval.odom.sequence import scenario_of, sim_scans
     from ssf_eval.results import write_result
 
@@ -235,7 +239,8 @@ def run_eval(args: argparse.Namespace) -> int:
         if folder is not None:
             check_writable_dir(folder, what)
     config = odom_config(args)
-    scenarios = [scenario_of(name, args.agents) for name in args.scenarios]
+    sim = overrides_from_pairs(args.sim_param, "--sim-param")
+    scenarios = [scenario_of(name, args.agents, sim) for name in args.scenarios]
     perception = (perception_for(args.masks, args.seed, perception_overrides(args), plain="flow" in args.methods)
                   if {"flow", "ssf", "ssf+twist"} & set(args.methods) else None)
     results = {}

@@ -15,6 +15,7 @@ from ssf_common.dataset.masks import noisy_mask
 from ssf_common.dataset.pairs import make_pair
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, transform_points
+from ssf_common.geometry.sweep import pair_times, timed
 from ssf_eval.odom.metrics import OdomScores, score
 from ssf_eval.odom.sequence import SimScan
 from ssf_common.records import Obstacles
@@ -52,8 +53,10 @@ class OdomPerception:
     With masks from the segmentation, the flow without a mask comes from an estimator of its own (`plain`), so that
     the loop's estimator carries from pair to pair exactly what the graph's flow node does."""
 
-    def __init__(self, masks: OdomMaskSource, estimator, pipeline=None, seed: int = 0, plain=None) -> None:
+    def __init__(self, masks: OdomMaskSource, estimator, pipeline=None, seed: int = 0, plain=None,
+                 period: float = 0.1) -> None:
         self.masks = OdomMaskSource(masks)
+        self.period = period  # s between scans: the span of a sweep that takes its period to turn
         self.estimator = estimator
         self.pipeline = pipeline  # ssf_eval.pipeline.PerceptionChain, for masks from the segmentation
         self.plain = plain  # estimator of the maskless flow; None: the 'flow' variant is not asked for
@@ -67,9 +70,12 @@ class OdomPerception:
     def __call__(self, scan: SimScan) -> Perceived:
         """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
         started = time.perf_counter()
-        plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points).flow
+        sweeps = pair_times(scan.time, scan.next_time, self.period)
+        timed = {} if sweeps is None else {"sweeps": sweeps}
+        plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points, **timed).flow
         if self.masks is OdomMaskSource.SEG:
-            result = self.pipeline.perceive(scan.points, scan.next_points, follows=True).fusion  # consecutive scans
+            result = self.pipeline.perceive(scan.points, scan.next_points, follows=True, time1=scan.time,
+                                            time2=scan.next_time).fusion  # consecutive scans
             return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3,
                              result.ego)
         if self.masks is OdomMaskSource.GT:
@@ -79,7 +85,7 @@ class OdomPerception:
         else:
             pair = make_pair(scan.points, scan.next_points, np.zeros_like(scan.points), scan.dynamic, scan.instance)
             mask = noisy_mask(pair, self.rng)
-        masked = self.estimator.estimate(scan.points, scan.next_points, mask)  # last: the stream carries its motions
+        masked = self.estimator.estimate(scan.points, scan.next_points, mask, **timed)  # last: the stream carries its motions
         return Perceived(plain, masked.flow, mask, (time.perf_counter() - started) * 1e3, masked.ego)
 
 
@@ -88,20 +94,23 @@ class KissIcpBaseline:
 
     name = KISS_ICP
 
-    def __init__(self, max_range: float = 100.0, voxel: float | None = None, threads: int = 1) -> None:
+    def __init__(self, max_range: float = 100.0, voxel: float | None = None, threads: int = 1,
+                 deskew: bool = True) -> None:
         from kiss_icp.config import KISSConfig
         from kiss_icp.kiss_icp import KissICP
 
         config = KISSConfig()
         config.data.max_range = max_range
-        config.data.deskew = False  # the simulated LiDAR takes each scan at one instant
+        config.data.deskew = deskew  # its own, on scans whose points carry time (constant velocity, to the sweep's end)
         config.mapping.voxel_size = voxel or max_range / 100.0  # KISS-ICP's own default rule
         config.registration.max_num_threads = threads
         self.odometry = KissICP(config)
 
-    def step(self, points: np.ndarray) -> np.ndarray:
-        """Register one scan; its pose (first scan's frame <- this scan)."""
-        self.odometry.register_frame(np.asarray(points, dtype=np.float64), np.zeros(0))
+    def step(self, points: np.ndarray, time: np.ndarray | None = None) -> np.ndarray:
+        """Register one scan (`time`: each point's, where the sweep took its period to turn); its pose (first scan's
+        frame <- this scan)."""
+        stamps = np.asarray(time, dtype=np.float64) if timed(time) else np.zeros(0)
+        self.odometry.register_frame(np.asarray(points, dtype=np.float64), stamps)
         return self.odometry.last_pose.copy()
 
     def map_points(self) -> np.ndarray:
@@ -174,7 +183,7 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: OdomP
     """Step every method through the scans; sample each map's trails every `trail_every` scans."""
     odometries = {name: make_odometry("ssf" if name == SSF_TWIST else name, config) for name in methods
                   if name != KISS_ICP}
-    kiss = KissIcpBaseline() if KISS_ICP in methods else None
+    kiss = KissIcpBaseline(deskew=config.deskew) if KISS_ICP in methods else None
     result = SequenceResult(runs={name: MethodRun(name) for name in methods})
     paths = SweptPaths()
     placements = {name: MapPlacement() for name in methods}
@@ -188,21 +197,22 @@ def run_sequence(scans: Iterable[SimScan], methods: list[str], perception: OdomP
         if perceived is not None:
             result.perception_ms.append(perceived.ms)
         for name, odometry in odometries.items():
-            frame = OdomInput(scan.stamp_ns, scan.points)
+            frame = OdomInput(scan.stamp_ns, scan.points, time=scan.time)
             if perceived is not None and name == "flow":
-                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain)
+                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow_plain, time=scan.time)
             elif perceived is not None and name == "ssf":
-                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob, ego=perceived.ego)
+                frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob, ego=perceived.ego,
+                                  time=scan.time)
             elif perceived is not None and name == SSF_TWIST:
                 frame = OdomInput(scan.stamp_ns, scan.points, perceived.flow, perceived.dynamic_prob,
-                                  measured_motion=scan.measured_motion, ego=perceived.ego)
+                                  measured_motion=scan.measured_motion, ego=perceived.ego, time=scan.time)
             started = time.perf_counter()
             step = odometry.step(frame)
             result.runs[name].ms.append((time.perf_counter() - started) * 1e3)
             result.runs[name].poses.append(step.pose)
         if kiss is not None:
             started = time.perf_counter()
-            result.runs[KISS_ICP].poses.append(kiss.step(scan.points))
+            result.runs[KISS_ICP].poses.append(kiss.step(scan.points, scan.time))
             result.runs[KISS_ICP].ms.append((time.perf_counter() - started) * 1e3)
         if count % trail_every == 0:
             world = static_world(scan, config.ssf_range)

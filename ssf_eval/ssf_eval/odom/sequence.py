@@ -32,11 +32,14 @@ class SimScan:
     pose: np.ndarray  # (4, 4) world <- sensor
     agents: Obstacles  # agents near the ego, world frame
     measured_motion: np.ndarray | None = None  # (4, 4) last scan's sensor frame <- this one's, by the odometer
+    time: np.ndarray | None = None  # (N,) float32 each point's time, s relative to the stamp (all 0: an instant sweep)
+    next_time: np.ndarray | None = None  # (M,) the same for scan t+1
 
 
-def scenario_of(name: str, agents: int | None = None) -> Scenario:
-    """A shipped scenario (or YAML file), optionally with another agent count."""
-    return load_scenario(name, {"agents.count": agents} if agents is not None else None)
+def scenario_of(name: str, agents: int | None = None, overrides: dict | None = None) -> Scenario:
+    """A shipped scenario (or YAML file), optionally with another agent count and other dotted settings."""
+    changes = {**(overrides or {}), **({"agents.count": agents} if agents is not None else {})}
+    return load_scenario(name, changes or None)
 
 
 def odometer_motion(frame: Frame, dt: float) -> np.ndarray | None:
@@ -59,5 +62,6 @@ def sim_scans(scenario: Scenario, seed: int, frames: int, warmup_s: float) -> It
             near = np.linalg.norm(previous.agents.position[:, :2] - previous.pose[:2, 3], axis=1) < NEAR_AGENTS
             yield SimScan(previous.index - skip, previous.stamp_ns, previous.scan.points, frame.scan.points,
                           frame.flow.dynamic, previous.scan.instance, previous.pose,
-                          agent_obstacles(previous.agents.take(near), previous.stamp_ns), odometer_motion(previous, dt))
+                          agent_obstacles(previous.agents.take(near), previous.stamp_ns), odometer_motion(previous, dt),
+                          previous.scan.time, frame.scan.time)
         previous = frame

@@ -153,7 +153,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     import numpy as np
 
     from ssf_common.paths import check_writable, save_npy
-    from ssf_common.scans import read_scan
+    from ssf_common.scans import read_scan_with_time
     from ssf_eval.pipeline import PerceptionChain
     from ssf_eval.results import write_result
 
@@ -163,8 +163,8 @@ def run_estimate(args: argparse.Namespace) -> int:
     config = perception_config(args, **{"seg.method": args.method, "flow.estimator": args.flow_estimator,
                                         "fusion.max_iterations": args.iterations, "dt": args.dt})
     perception = PerceptionChain(config, args.device)
-    pc1, pc2 = read_scan(args.pc1), read_scan(args.pc2)
-    result = perception.perceive(pc1[:, :3], pc2[:, :3], frame_id="sensor")
+    (pc1, time1), (pc2, time2) = (read_scan_with_time(path, sweep_period=config.dt) for path in (args.pc1, args.pc2))
+    result = perception.perceive(pc1[:, :3], pc2[:, :3], frame_id="sensor", time1=time1, time2=time2)
     seg = result.fusion.segmentation
     columns = np.column_stack([seg.dynamic_prob, seg.label, seg.instance, result.fusion.flow]).astype(np.float32)
     save_npy(args.out, columns)

@@ -10,6 +10,7 @@ from pydantic import Field
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError
 from ssf_flow_node.core.base import FlowEstimator, FlowResult, prepare
+from ssf_flow_node.core.deskew import DeskewingEstimator
 from ssf_flow_node.core.preprocess import PreprocessConfig
 from ssf_common.geometry.se3 import rigid_flow
 from ssf_flow_node.core.registration import RegistrationConfig, register
@@ -38,6 +39,10 @@ class FlowConfig(Section):
     """Everything an estimator needs; the same dotted names in YAML, ROS parameters and CLI flags."""
 
     estimator: str = Field("rigid", description="zero | ego | rigid | asf")
+    deskew: bool = Field(True, description="where the scans' points carry time (a sweep that takes its period to "
+                         "turn), move them to their stamps by the ego motion along the ground interpolated across the "
+                         "sweep before the estimate, and each point's flow back to its time after it (core/deskew.py); scans without "
+                         "time, or all of it zero, are estimated as given either way")
     preprocess: PreprocessConfig = PreprocessConfig()
     registration: RegistrationConfig = RegistrationConfig()
     rigid: RigidConfig = RigidConfig()
@@ -74,10 +79,15 @@ class EgoFlowEstimator:
         return FlowResult(flow=rigid_flow(ego, pair.pc1), ego=ego)
 
 
-def make_estimator(name: str | None = None, config: FlowConfig | None = None, device: str = "cpu") -> FlowEstimator:
-    """The estimator called `name` (default: config.estimator) built from its config."""
+def make_estimator(name: str | None = None, config: FlowConfig | None = None, device: str = "cpu") -> DeskewingEstimator:
+    """The estimator called `name` (default: config.estimator) built from its config, deskewing sweeps that carry time
+    (config.deskew)."""
     config = config or FlowConfig()
-    name = name or config.estimator
+    return DeskewingEstimator(_make(name or config.estimator, config, device), config.deskew)
+
+
+def _make(name: str, config: FlowConfig, device: str) -> FlowEstimator:
+    """The estimator called `name` on scans as given."""
     if name == "zero":
         return ZeroFlowEstimator()
     if name == "ego":

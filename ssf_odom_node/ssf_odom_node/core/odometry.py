@@ -15,7 +15,8 @@ from scipy.spatial import cKDTree
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.sampling import voxel_indices
-from ssf_common.geometry.se3 import invert, rotation_angle, transform_points, yaw_matrix
+from ssf_common.geometry.se3 import interpolate_poses, invert, rotation_angle, transform_points, yaw_matrix
+from ssf_common.geometry.sweep import check_time, deskew, planar, timed
 from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
                                              normals_among, point_to_plane, steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap, above_ground
@@ -88,6 +89,10 @@ class OdomConfig(Section):
     kernel: float = Field(0.2, gt=0.0, description="Geman-McClure scale of the point-to-plane residuals (m)")
     normal_neighbours: int = Field(8, ge=3, description="neighbours for the normals of map points")
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
+    deskew: bool = Field(True, description="where the scan's points carry time (a sweep that takes its period to "
+                         "turn), move each into the sensor frame at the stamp before registering and mapping it, at "
+                         "constant velocity within the sweep (the motion the scan's pose is predicted with), so that "
+                         "the pose is the one at the stamp; scans without time, or all of it zero, are taken as given")
     map: MapConfig = MapConfig()
 
 
@@ -105,6 +110,7 @@ class OdomInput:
     # gyro) measured it; None when it has none
     ego: np.ndarray | None = None  # (4, 4) this scan -> the next, as the flow estimator aligned it (scan-t coordinates
     # of static points -> the next scan's frame); ssf takes it as the motion to the next scan instead of fitting one
+    time: np.ndarray | None = None  # (N,) each point's time, s relative to the stamp (None or all zero: an instant sweep)
 
 
 @dataclass(frozen=True)
@@ -144,10 +150,11 @@ class Odometry:
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
         scan, flow, dynamic = self.check(frame)
+        # 1. predict: the motion the last scan's static flow gave, and constant velocity; the scan at its stamp
+        by_flow, by_velocity = self.predict(frame.stamp_ns)
+        scan = self.deskewed(scan, frame, by_velocity if by_flow is None else by_flow)
         squared = scan[:, 0] * scan[:, 0] + scan[:, 1] * scan[:, 1]  # horizontal range, squared
         points, flow, dynamic = self.reduce(scan, flow, dynamic, squared)
-        # 1. predict: the motion the last scan's static flow gave, and constant velocity
-        by_flow, by_velocity = self.predict(frame.stamp_ns)
         # 2. the points this method registers and maps: the static ones (ssf) or all
         registered, weights = self.registered_points(points, dynamic)
         # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ)
@@ -166,6 +173,18 @@ class Odometry:
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
                         None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
                         alignment.rmse, source, len(self.map), len(registered))
+
+    def deskewed(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray) -> np.ndarray:
+        """The scan in the sensor frame at its stamp: each point moved from its time by the motion along the ground
+        over the sweep at constant velocity (the predicted one, per scan period); as given without time, with deskew
+        off, or on the first scan (no motion known)."""
+        if not self.config.deskew or not timed(frame.time) or self.stamp_ns is None:
+            return scan
+        periods = self.elapsed(frame.stamp_ns) / self.config.scan_period
+        later = interpolate_poses(self.pose, predicted, np.array([1.0 / periods]))[0]  # odom <- a period on
+        motion = planar(invert(later) @ self.pose)  # the flow's convention: a stamp's frame -> a period later
+        return deskew(scan, check_time(frame.time, len(scan), "odometry: the scan's per-point time"), motion,
+                      self.config.scan_period)
 
     def reduce(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None, squared: np.ndarray):
         """The points within range (`squared`: their horizontal range, squared), one per voxel, with their flow and

@@ -11,6 +11,7 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.geometry.sweep import PairTimes
 from ssf_common.records import MotionMask, SceneFlow, Segmentation, SemanticFlow
 from ssf_common.temporal_prior import carry_prior, prior_source
 from ssf_seg_node.core.base import Segmenter
@@ -141,14 +142,17 @@ class FusionLoop:
         self.segmenter = segmenter
         self.config = config
 
-    def run(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FusionResult:
-        """Iterate from the preliminary mask M^(0) (None: no mask) until Delta_total < epsilon or N_iter."""
+    def run(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None,
+            sweeps: PairTimes | None = None) -> FusionResult:
+        """Iterate from the preliminary mask M^(0) (None: no mask) until Delta_total < epsilon or N_iter; `sweeps`
+        (per-point time of both scans; None: none) goes to the flow estimator, which deskews with it."""
         steps: list[FusionStep] = []
         previous_flow = None
+        timed = {} if sweeps is None else {"sweeps": sweeps}
         for iteration in range(self.config.max_iterations):
             # 1. scene flow conditioned on the current mask
             started, cpu = time.perf_counter(), time.process_time()
-            estimate = self.estimator.estimate(pc1, pc2, mask)
+            estimate = self.estimator.estimate(pc1, pc2, mask, **timed)
             flow_ms, flow_cpu_ms = (time.perf_counter() - started) * 1e3, (time.process_time() - cpu) * 1e3
             # 2. segmentation of points and flow, with the current mask as its prior
             started, cpu = time.perf_counter(), time.process_time()
@@ -295,7 +299,8 @@ class DistributedLoop:
         mask, flow = scan.masks[iteration], scan.flows[iteration]
         segmentation = Segmentation.from_probability(mask.dynamic_prob, mask.instance)
         result = SemanticFlow(scan.stamp_ns, scan.frame_id, scan.points, np.asarray(flow.flow, np.float32),
-                              segmentation, iterations=iteration + 1, converged=reason == "converged", ego=flow.ego)
+                              segmentation, iterations=iteration + 1, converged=reason == "converged", ego=flow.ego,
+                              time=flow.time)
         self.finished[reason] += 1
         self.scan = None
         return Finish(result, status, reason)

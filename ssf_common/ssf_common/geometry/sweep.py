@@ -1,0 +1,91 @@
+"""Sweeps that take their period to turn: each point moved from the sensor frame of its own time to the frame at its
+scan's stamp (deskew), and back (reskew), at constant velocity within the sweep.
+
+A point's `time` is seconds relative to its scan's header stamp (<= 0 where the stamp marks the sweep's end, >= 0
+where it marks the start; the readers give either). The sensor's motion is given as the flow's ego motion over one
+period: the transform that maps static points of the frame at a stamp into the frame one period later, (L_T)^-1 L_0.
+At constant velocity the frame at time t relative to the stamp is reached by that motion raised to -t / period, so a
+point taken at t lies at motion^(-t / period) p in the stamp's frame (se3.interpolate_poses, a constant-twist motion).
+Flow and odometry deskew with the motion along the ground only (`planar`): a car's height, roll and pitch follow the
+road's bumps, which change within a period and which no constant velocity predicts."""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+
+from ssf_common.errors import DataError
+from ssf_common.geometry.se3 import interpolate_poses, invert, make_pose, yaw_of
+
+STEPS = 4096  # shares of a period between the poses the points take: at 10 Hz and 30 m/s, 0.4 mm apart at most
+
+
+class PairTimes(NamedTuple):
+    """Per-point time of scan t and of scan t+1 (s relative to each one's stamp) and the time between the stamps."""
+
+    time1: np.ndarray
+    time2: np.ndarray
+    period: float
+
+
+def timed(time: np.ndarray | None) -> bool:
+    """Whether a scan's per-point time says anything: given, and not an instant sweep (all zero)."""
+    return time is not None and bool(np.any(np.asarray(time)))
+
+
+def pair_times(time1: np.ndarray | None, time2: np.ndarray | None, period: float) -> PairTimes | None:
+    """The pair's times when either scan took its period to turn (a scan without time then counts as instant), else
+    None: nothing to deskew."""
+    if not (timed(time1) or timed(time2)):
+        return None
+    return PairTimes(*(np.zeros(0, np.float32) if time is None else np.asarray(time, np.float32)
+                       for time in (time1, time2)), float(period))
+
+
+def check_time(time: np.ndarray, count: int, name: str) -> np.ndarray:
+    """A scan's per-point time as float64 (an empty array: an instant sweep of `count` points); DataError names a
+    mismatch."""
+    time = np.asarray(time, dtype=np.float64).reshape(-1)
+    if time.size == 0:
+        return np.zeros(count)
+    if time.shape != (count,) or not np.isfinite(time).all():
+        raise DataError(f"{name}: expected {count} finite per-point times, got {time.size} values"
+                        + ("" if time.shape != (count,) else " with NaN/Inf"))
+    return time
+
+
+def deskew(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: float) -> np.ndarray:
+    """Points (N, 3) each in the sensor frame of its time, moved into the frame at the stamp (float32)."""
+    return _move(points, time, motion, period, back=False)
+
+
+def reskew(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: float) -> np.ndarray:
+    """Points (N, 3) in the frame at the stamp, each moved into the sensor frame of its time: deskew undone."""
+    return _move(points, time, motion, period, back=True)
+
+
+def planar(motion: np.ndarray) -> np.ndarray:
+    """A sweep's motion along the ground (x, y, yaw): what constant velocity carries across a sweep. Height, roll and
+    pitch change with each bump of the road within a period and are left as the sweep took them."""
+    motion = np.asarray(motion, dtype=np.float64)
+    return make_pose(motion[0, 3], motion[1, 3], 0.0, yaw_of(motion))
+
+
+def _move(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: float, back: bool) -> np.ndarray:
+    """Each point through motion^(-time / period), or its inverse (`back`); poses taken at STEPS shares a period."""
+    points = np.asarray(points, dtype=np.float64)[:, :3]
+    if period <= 0 or not np.isfinite(period):
+        raise DataError(f"a sweep's period must be a positive number of seconds, got {period}")
+    steps = np.rint(-check_time(time, len(points), "sweep") / period * STEPS).astype(np.int64)
+    if not len(points) or not steps.any():
+        return points.astype(np.float32)
+    low = int(steps.min())
+    poses = interpolate_poses(np.eye(4), motion, np.arange(low, int(steps.max()) + 1) / STEPS)
+    if back:
+        poses = invert(poses)
+    pose = poses[steps - low]
+    return (np.einsum("nij,nj->ni", pose[:, :3, :3], points) + pose[:, :3, 3]).astype(np.float32)
+
+
+__all__ = ["PairTimes", "check_time", "deskew", "pair_times", "planar", "reskew", "timed"]
