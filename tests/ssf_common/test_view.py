@@ -39,10 +39,17 @@ def server_url(process: subprocess.Popen, timeout_s: float = 60.0) -> str:
         line = process.stderr.readline()
         seen.append(line)
         if match := URL.search(line):
+            drain(process)
             return match.group(1)
         if not line and process.poll() is not None:
             break
     pytest.fail(f"no viewer address announced: {''.join(seen)[-2000:]}")
+
+
+def drain(process: subprocess.Popen) -> None:
+    """Keep reading the process's stderr: a pipe nobody reads fills (64 KiB) and blocks the process's next log line,
+    and a process blocked in a write cannot shut down on SIGINT."""
+    threading.Thread(target=lambda: process.stderr.read(), daemon=True).start()
 
 
 def advertised(ws, wanted: set[str], timeout_s: float = 30.0) -> dict[str, dict]:
