@@ -28,3 +28,10 @@ def stop_requests() -> Iterator[threading.Event]:
     finally:
         for sig, handler in previous.items():
             signal.signal(sig, handler)
+
+
+def interruptible() -> None:
+    """SIGINT raises KeyboardInterrupt even where the process started with it ignored (a shell's background job
+    inherits SIGINT ignored): `kill -INT`, as `ros2 launch` and `ssf launch` stop a node, still stops it."""
+    if threading.current_thread() is threading.main_thread() and signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+        signal.signal(signal.SIGINT, signal.default_int_handler)

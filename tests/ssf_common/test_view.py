@@ -172,6 +172,21 @@ def test_a_client_offering_no_foxglove_subprotocol_is_refused(publisher):
         viewer.wait(timeout=20)
 
 
+def test_a_viewer_started_with_sigint_ignored_still_stops_on_it(publisher):
+    """A shell's background job inherits SIGINT ignored; `kill -INT` (how launchers stop nodes) still stops the viewer,
+    even while its node is still being built."""
+    viewer = subprocess.Popen(ssf("view", "--port", "0"), stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True,
+                              preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_IGN))
+    try:
+        server_url(viewer)
+        viewer.send_signal(signal.SIGINT)
+        assert viewer.wait(timeout=20) in (0, 130)
+    finally:
+        if viewer.poll() is None:
+            viewer.kill()
+            viewer.wait()
+
+
 @pytest.mark.parametrize(
     ("args", "fragment"),
     [

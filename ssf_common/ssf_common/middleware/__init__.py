@@ -10,6 +10,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from ssf_common.errors import SsfError
+from ssf_common.interrupts import interruptible
 from ssf_common.middleware.node import (
     Clock,
     Heard,
@@ -68,6 +69,7 @@ def run(node_factory: Callable[..., Node], argv: Sequence[str] | None = None) ->
     """Console-script body of a node: build it, spin until SIGINT/SIGTERM, shut down cleanly.
 
     Exit status: 2 when the node could not be built (bad parameters or files), else the node's `exit_code`."""
+    interruptible()
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         node = node_factory(argv=args)
