@@ -54,20 +54,9 @@ def test_the_previous_motion_as_a_start_finds_the_true_motion(sparse_pair):
 
 @pytest.mark.parametrize("backend", list(IcpBackend))
 def test_each_icp_backend_finds_a_known_motion_from_a_close_start(sparse_pair, backend):
-    pytest.importorskip(backend.value)
     source, target, truth = sparse_pair
     matcher = ScanMatcher(target, RegistrationConfig(backend=backend))
     assert np.allclose(np.linalg.norm(matcher.normals(), axis=1)[:100], 1.0, atol=1e-6)  # the target's normals
     found = matcher.refine(source, make_pose(-0.5))
     assert np.linalg.norm(found[:3, 3] - truth[:3, 3]) < 0.02
     assert matcher.refined(source, found).fitness > 0.6  # all but the ground rings, which drive with the sensor
-
-
-def test_a_missing_small_gicp_is_one_clear_line(monkeypatch):
-    import builtins
-
-    real_import = builtins.__import__
-    monkeypatch.setattr(builtins, "__import__", lambda name, *args, **kwargs: (
-        (_ for _ in ()).throw(ImportError(name)) if name == "small_gicp" else real_import(name, *args, **kwargs)))
-    with pytest.raises(ConfigError, match="pip install 'ssf-pan\\[bench\\]'"):
-        ScanMatcher(np.zeros((20, 3)), RegistrationConfig(backend="small_gicp"))

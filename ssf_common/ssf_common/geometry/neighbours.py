@@ -5,7 +5,34 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
+import small_gicp
+
+
+class PointIndex:
+    """A KD-tree over 3-D points, queried as scipy's cKDTree is (distance inf and index n where no point lies closer
+    than the bound), built and searched by small_gicp's compiled tree: about twice as fast as cKDTree at both."""
+
+    def __init__(self, points: np.ndarray) -> None:
+        self.data = np.ascontiguousarray(np.asarray(points)[:, :3], dtype=np.float64)
+        self.n = len(self.data)
+        self._tree = small_gicp.KdTree(self.data) if self.n else None  # small_gicp cannot hold an empty cloud
+
+    def query(self, points: np.ndarray, k: int = 1,
+              distance_upper_bound: float = np.inf) -> tuple[np.ndarray, np.ndarray]:
+        """Distances and indices of the k nearest points (nearest first) closer than distance_upper_bound; shapes (M,)
+        for k = 1, else (M, k)."""
+        points = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 3))
+        reach = min(int(k), self.n)
+        distance = np.full((len(points), int(k)), np.inf)
+        index = np.full((len(points), int(k)), self.n, dtype=np.int64)
+        if reach > 0 and len(points):
+            found, squared = self._tree.batch_knn_search(points, reach)
+            found = np.asarray(found).astype(np.int64).reshape(len(points), reach)  # a missing one: 2^64 - 1 wraps to -1
+            gap = np.sqrt(np.asarray(squared).reshape(len(points), reach))
+            within = (found >= 0) & (gap < distance_upper_bound)
+            distance[:, :reach] = np.where(within, gap, np.inf)
+            index[:, :reach] = np.where(within, found, self.n)
+        return (distance[:, 0], index[:, 0]) if k == 1 else (distance, index)
 
 
 class Neighbours(NamedTuple):
@@ -18,23 +45,23 @@ class Neighbours(NamedTuple):
 
 
 def knn(reference: np.ndarray, query: np.ndarray, k: int, radius: float = np.inf,
-        tree: cKDTree | None = None) -> Neighbours:
+        tree: PointIndex | None = None) -> Neighbours:
     """The k nearest reference points of each query point, within `radius`."""
     k = max(1, int(k))
-    tree = tree if tree is not None else cKDTree(np.asarray(reference)[:, :3])
+    tree = tree if tree is not None else PointIndex(reference)
     distance, index = tree.query(np.asarray(query)[:, :3], k=k, distance_upper_bound=radius)
     return Neighbours(distance.reshape(len(query), k), index.reshape(len(query), k))
 
 
 def nearest(reference: np.ndarray, query: np.ndarray, radius: float = np.inf,
-            tree: cKDTree | None = None) -> Neighbours:
+            tree: PointIndex | None = None) -> Neighbours:
     """The nearest reference point of each query point: distances (M,) and indices (M,)."""
     found = knn(reference, query, 1, radius, tree)
     return Neighbours(found.distance[:, 0], found.index[:, 0])
 
 
 def radius_neighbours(reference: np.ndarray, query: np.ndarray, radius: float, max_neighbours: int = 32,
-                      tree: cKDTree | None = None) -> Neighbours:
+                      tree: PointIndex | None = None) -> Neighbours:
     """Up to `max_neighbours` reference points within `radius` of each query point (nearest first)."""
     return knn(reference, query, max_neighbours, radius, tree)
 
@@ -83,6 +110,6 @@ def propagate(source: np.ndarray, values: np.ndarray, targets: np.ndarray, k: in
 
 def chamfer_distance(a: np.ndarray, b: np.ndarray, truncate: float = np.inf) -> float:
     """Symmetric Chamfer distance: mean nearest distance a -> b plus b -> a (each capped at `truncate`)."""
-    ab = np.minimum(cKDTree(b[:, :3]).query(a[:, :3])[0], truncate)
-    ba = np.minimum(cKDTree(a[:, :3]).query(b[:, :3])[0], truncate)
+    ab = np.minimum(PointIndex(b).query(a[:, :3])[0], truncate)
+    ba = np.minimum(PointIndex(a).query(b[:, :3])[0], truncate)
     return float(ab.mean() + ba.mean())

@@ -55,13 +55,8 @@ def compare_backends(odometry: Odometry, frames: list[OdomInput], truths: list[n
                      log: Callable[[str], None]) -> dict[str, dict[str, float]]:
     """Per back end: median ms of one refinement from the odometry's prediction, and median translation error of its
     result against the true pose (relative to the first scan)."""
-    available: dict[str, Callable] = {"numpy": numpy_backend, "open3d": open3d_backend}
-    try:
-        import small_gicp  # noqa: F401
-
-        available["small_gicp"] = small_gicp_backend
-    except ImportError:
-        log("small_gicp is not installed (pip install 'ssf-pan[bench]'): left out")
+    available: dict[str, Callable] = {"numpy": numpy_backend, "open3d": open3d_backend,
+                                      "small_gicp": small_gicp_backend}
     spent: dict[str, list[float]] = {name: [] for name in available}
     errors: dict[str, list[float]] = {name: [] for name in available}
     first = truths[0]

@@ -6,12 +6,11 @@ from typing import NamedTuple
 
 import numpy as np
 from pydantic import Field
-from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
 from ssf_common.errors import DataError
 from ssf_common.geometry.ground import height_above_ground
-from ssf_common.geometry.neighbours import may_be_near, propagate
+from ssf_common.geometry.neighbours import PointIndex, may_be_near, propagate
 from ssf_common.geometry.sampling import Sampling, sample_indices
 
 
@@ -155,7 +154,7 @@ def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k
     rest[sample.indices] = False
     rest = np.flatnonzero(rest)
     rest = rest[may_be_near(sample.points[moving], points[rest], radius)]
-    gap, _ = cKDTree(sample.points[moving]).query(points[rest], distance_upper_bound=radius)
+    gap, _ = PointIndex(sample.points[moving]).query(points[rest], distance_upper_bound=radius)
     near = rest[np.isfinite(gap)]  # only these can pick up any motion
     if near.size:
         motion[near] = propagate(sample.points, relative, points[near], k, radius)

@@ -5,10 +5,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ssf_common.geometry.labels import label_means
 from ssf_common.geometry.se3 import yaw_translate
+from ssf_common.geometry.neighbours import PointIndex
 from ssf_flow_node.core.rigid.clusters import Clusters
 from ssf_flow_node.core.rigid.config import RigidConfig
 from ssf_flow_node.core.rigid.fits import Fit, no_worse
@@ -46,7 +46,7 @@ def carry_motions(left: Carried, landed: np.ndarray, points: np.ndarray, radius:
     motion, streak, proven = np.zeros((len(points), 3)), np.full(len(points), -1), np.zeros(len(points), np.int64)
     moving = np.flatnonzero(left.streak >= 0)
     if moving.size and len(points):
-        gap, index = cKDTree(landed[moving]).query(points, distance_upper_bound=radius)
+        gap, index = PointIndex(landed[moving]).query(points, distance_upper_bound=radius)
         hit = np.isfinite(gap)
         source = moving[index[hit]]
         motion[hit], streak[hit], proven[hit] = left.motion[source], left.streak[source], left.proven[source]

@@ -6,10 +6,10 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ssf_common.geometry.clustering import voxel_components
 from ssf_common.geometry.labels import label_quantiles
+from ssf_common.geometry.neighbours import PointIndex
 from ssf_flow_node.core.rigid.config import RigidConfig
 
 
@@ -29,13 +29,13 @@ class Surfaces(NamedTuple):
 
     points: np.ndarray
     normals: np.ndarray | None
-    tree: cKDTree
+    tree: PointIndex
     roughness: np.ndarray
 
 
 def surfaces_of(points: np.ndarray, normals: np.ndarray | None) -> Surfaces:
     """Searchable surfaces of scan t+1's points."""
-    tree = cKDTree(points)
+    tree = PointIndex(points)
     gap, index = tree.query(points, k=2) if len(points) > 1 else (np.zeros((len(points), 2)), np.zeros((len(points), 2), int))
     rough = gap[:, 1] if normals is None else np.abs(np.einsum("ij,ij->i", points[index[:, 1]] - points, normals))
     return Surfaces(points, normals, tree, rough)

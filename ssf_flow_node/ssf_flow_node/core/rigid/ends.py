@@ -5,10 +5,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ssf_common.geometry.labels import label_counts, label_main_axes, label_spans
-from ssf_common.geometry.neighbours import may_be_near
+from ssf_common.geometry.neighbours import PointIndex, may_be_near
 from ssf_flow_node.core.preprocess import PreprocessConfig, object_top
 from ssf_flow_node.core.rigid.clusters import Clusters, component_count
 from ssf_flow_node.core.rigid.config import RigidConfig
@@ -74,7 +73,7 @@ def band_ends(band: np.ndarray, sampled: np.ndarray, labels: np.ndarray, along: 
     sampled, labels = sampled[outer], labels[outer]
     cap = max(float(reach.max(initial=0.0)), 1e-9)
     near = np.flatnonzero(may_be_near(sampled, band, cap))
-    gap, index = cKDTree(sampled).query(band[near], distance_upper_bound=cap)
+    gap, index = PointIndex(sampled).query(band[near], distance_upper_bound=cap)
     found = np.isfinite(gap)
     label = labels[index[found]]
     inside = gap[found] <= reach[label]

@@ -6,9 +6,9 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ssf_common.geometry.labels import label_means
+from ssf_common.geometry.neighbours import PointIndex
 from ssf_flow_node.core.rigid.config import RigidConfig
 
 
@@ -20,7 +20,7 @@ class Fit(NamedTuple):
     unexplained: np.ndarray  # share of points not near it, or farther than inlier_gate from its surfaces
 
 
-def surface_distance(moved: np.ndarray, tree: cKDTree, points2: np.ndarray, normals2: np.ndarray | None, cap: float,
+def surface_distance(moved: np.ndarray, tree: PointIndex, points2: np.ndarray, normals2: np.ndarray | None, cap: float,
                      allowed: np.ndarray | None = None, labels2: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Per point, the distance to the nearest point of scan t+1 (capped) and to its surface along the normal there
     (NaN where no point lies within the cap); `allowed`: the component each point must land on (labels2: the
@@ -38,7 +38,7 @@ def surface_distance(moved: np.ndarray, tree: cKDTree, points2: np.ndarray, norm
     return point, plane
 
 
-def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray, allowed: np.ndarray,
+def fit_quality(moved: np.ndarray, labels: np.ndarray, tree: PointIndex, labels2: np.ndarray, allowed: np.ndarray,
                 config: RigidConfig, count: int, normals2: np.ndarray | None = None,
                 points2: np.ndarray | None = None) -> Fit:
     """Per label, residuals and unexplained share of its moved points against their component in scan t+1
@@ -87,7 +87,7 @@ def explains(fit_moving: Fit, fit_static: Fit, believed: np.ndarray, floor: np.n
     return no_worse(fit_moving, fit_static, floor, config) & proven
 
 
-def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: cKDTree, labels2: np.ndarray,
+def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: PointIndex, labels2: np.ndarray,
                allowed: np.ndarray, config: RigidConfig, count: int, normals2: np.ndarray | None,
                points2: np.ndarray, floor: np.ndarray) -> Fit:
     """How well standing still, as the moved sensor samples it again (`sensed`: the points as scan t saw them), explains
@@ -117,7 +117,7 @@ def static_fit(still: np.ndarray, sensed: np.ndarray, labels: np.ndarray, tree: 
     return fit_of(point, np.where(passed, 0.0, plane), labels, count, config)
 
 
-def spacing_along(points: np.ndarray, tree: cKDTree, index: np.ndarray, direction: np.ndarray,
+def spacing_along(points: np.ndarray, tree: PointIndex, index: np.ndarray, direction: np.ndarray,
                   neighbours: int = 8) -> np.ndarray:
     """Per query, how far the points of the tree lie apart along `direction` at points[index]: the distance to the
     nearest of its neighbours within 45 degrees of that direction (either way), else to the farthest neighbour."""

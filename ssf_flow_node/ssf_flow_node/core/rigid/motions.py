@@ -6,11 +6,11 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
 from ssf_common.geometry.se3 import yaw_translate
+from ssf_common.geometry.neighbours import PointIndex
 from ssf_flow_node.core.rigid.carry import Carried, carried_motions, continue_carried
 from ssf_flow_node.core.rigid.clusters import (Clusters, Surfaces, component_count, joint_clusters, noise_floors,
                                                priorities, ranked_per_label)
@@ -32,7 +32,7 @@ class ClusterMotions(NamedTuple):
 
 
 def initial_translations(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, active: np.ndarray,
-                         config: RigidConfig, tree: cKDTree, previous: np.ndarray | None = None,
+                         config: RigidConfig, tree: PointIndex, previous: np.ndarray | None = None,
                          carried: np.ndarray | None = None) -> np.ndarray:
     """Per cluster, the best of: no motion, the centroid shift, the peaks of the displacement histogram, the mean
     motion its points had in the previous estimate on this pair, and the motion carried from the previous pair."""
@@ -101,7 +101,7 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
 
 def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters, config: RigidConfig,
                     belief: np.ndarray | None, normals2: np.ndarray | None, floors: np.ndarray,
-                    tree: cKDTree | None = None, candidates: np.ndarray | None = None,
+                    tree: PointIndex | None = None, candidates: np.ndarray | None = None,
                     previous: np.ndarray | None = None, sensed: np.ndarray | None = None,
                     carried: Carried | None = None, bands: Bands | None = None) -> ClusterMotions:
     """Histogram-initialised batched ICP per cluster; a motion is kept where it explains the points better than
@@ -123,7 +123,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         active |= believed & (sizes >= config.min_masked_points)
     if candidates is not None:
         active &= candidates
-    tree = cKDTree(points2) if tree is None else tree
+    tree = PointIndex(points2) if tree is None else tree
     carry = None if carried is None else carried_motions(clusters, carried, config)
     members = ranked_per_label(clusters.labels1, active, config.icp_points, priorities(len(points1), 2))
     source, labels = points1[members], clusters.labels1[members]
@@ -285,7 +285,7 @@ def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarr
     points2, normals, tree = surfaces.points, surfaces.normals, surfaces.tree
     if not on_moving.any() or points.shape[0] == 0 or points2.shape[0] == 0:
         return attached
-    gap, index = cKDTree(clustered[on_moving]).query(points, distance_upper_bound=config.attach_distance)
+    gap, index = PointIndex(clustered[on_moving]).query(points, distance_upper_bound=config.attach_distance)
     near = np.flatnonzero(np.isfinite(gap))
     if near.size == 0:
         return attached
