@@ -11,6 +11,7 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
+from ssf_common.geometry.neighbours import PointIndex
 from ssf_common.geometry.sampling import grid_cells
 
 NEIGHBOUR_OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
@@ -75,7 +76,7 @@ def angular_spacing(points: np.ndarray, sample: int = 2048, seed: int = 0, neigh
     if points.shape[0] <= neighbours:
         return 0.0
     pick = np.random.default_rng(seed).choice(points.shape[0], min(sample, points.shape[0]), replace=False)
-    gaps = cKDTree(points).query(points[pick], k=neighbours + 1)[0][:, -1]
+    gaps = PointIndex(points).query(points[pick], k=neighbours + 1)[0][:, -1]
     return float(np.median(gaps / np.maximum(np.linalg.norm(points[pick], axis=1), 1e-6)))
 
 

@@ -10,10 +10,10 @@ from enum import Enum
 
 import numpy as np
 from pydantic import Field
-from scipy.spatial import cKDTree
 
 from ssf_common.config import Section
 from ssf_common.errors import ConfigError, DataError
+from ssf_common.geometry.neighbours import PointIndex
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import interpolate_poses, invert, rotation_angle, transform_points, yaw_matrix
 from ssf_common.geometry.sweep import check_time, deskew, planar, timed
@@ -242,7 +242,7 @@ class Odometry:
         if not len(self.map):
             return estimate_normals(moved, self.config.normal_neighbours, new)
         target = self.map.target()
-        return normals_among(moved[new], [(target.points, target.tree), (moved, cKDTree(moved))],
+        return normals_among(moved[new], [(target.points, target.tree), (moved, PointIndex(moved))],
                              self.config.normal_neighbours)
 
     def check(self, frame: OdomInput) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
