@@ -37,7 +37,8 @@ def carry_prior(source: PriorSource, next_points: np.ndarray) -> np.ndarray:
     points = np.asarray(source.points, np.float64)
     following = np.asarray(next_points, np.float64)[:, :3]
     candidates = np.flatnonzero(may_be_near(points[moving], following, radius))  # only near a mover can one be nearest
-    found = nearest(points, following[candidates], radius)
+    around = np.flatnonzero(may_be_near(following[candidates], points, radius))  # and only these source points
+    found = nearest(points[around], following[candidates], radius)
     hit = np.isfinite(found.distance)
-    prior[candidates[hit]] = source.probability[found.index[hit]]
+    prior[candidates[hit]] = source.probability[around[found.index[hit]]]
     return prior

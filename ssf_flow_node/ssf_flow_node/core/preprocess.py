@@ -156,6 +156,7 @@ def propagate_motion(points: np.ndarray, sample: Sample, relative: np.ndarray, k
     rest = rest[may_be_near(sample.points[moving], points[rest], radius)]
     gap, _ = PointIndex(sample.points[moving]).query(points[rest], distance_upper_bound=radius)
     near = rest[np.isfinite(gap)]  # only these can pick up any motion
-    if near.size:
-        motion[near] = propagate(sample.points, relative, points[near], k, radius)
+    if near.size:  # from the sampled points that may lie within the radius of them (the same neighbours, fewer searched)
+        around = np.flatnonzero(may_be_near(points[near], sample.points, radius))
+        motion[near] = propagate(sample.points[around], relative[around], points[near], k, radius)
     return motion

@@ -7,8 +7,8 @@ from typing import NamedTuple
 import numpy as np
 
 from ssf_common.geometry.labels import label_means
+from ssf_common.geometry.neighbours import PointIndex, may_be_near
 from ssf_common.geometry.se3 import yaw_translate
-from ssf_common.geometry.neighbours import PointIndex
 from ssf_flow_node.core.rigid.clusters import Clusters
 from ssf_flow_node.core.rigid.config import RigidConfig
 from ssf_flow_node.core.rigid.fits import Fit, no_worse
@@ -45,11 +45,13 @@ def carry_motions(left: Carried, landed: np.ndarray, points: np.ndarray, radius:
     estimate moved them) that landed nearest it, within `radius` (m)."""
     motion, streak, proven = np.zeros((len(points), 3)), np.full(len(points), -1), np.zeros(len(points), np.int64)
     moving = np.flatnonzero(left.streak >= 0)
-    if moving.size and len(points):
-        gap, index = PointIndex(landed[moving]).query(points, distance_upper_bound=radius)
+    near = np.flatnonzero(may_be_near(landed[moving], points, radius)) if moving.size else moving
+    if near.size:  # the few points near the movers, not the whole scan, are searched
+        gap, index = PointIndex(landed[moving]).query(points[near], distance_upper_bound=radius)
         hit = np.isfinite(gap)
         source = moving[index[hit]]
-        motion[hit], streak[hit], proven[hit] = left.motion[source], left.streak[source], left.proven[source]
+        near = near[hit]
+        motion[near], streak[near], proven[near] = left.motion[source], left.streak[source], left.proven[source]
     return Carried(motion, streak, proven)
 
 
