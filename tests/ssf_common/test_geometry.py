@@ -13,7 +13,7 @@ from ssf_common.geometry.ground import ground_mask, height_above_ground
 from ssf_common.geometry.kinematics import PlanarState, commanded_motion, driven, forward_speed, measured_motion
 from ssf_common.geometry.labels import (label_extents, label_main_axes, label_means, label_quantiles, label_spans,
                                          label_sums_of_rows, pick_per_label, ragged_arange)
-from ssf_common.geometry.neighbours import chamfer_distance, knn, may_be_near, nearest, propagate
+from ssf_common.geometry.neighbours import PointIndex, chamfer_distance, knn, may_be_near, nearest, propagate
 from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, greedy_farthest_indices, grid_cells, sample_indices,
                                           voxel_indices, voxel_keys)
 from ssf_common.geometry.se3 import (compose, exp_twists, interpolate_poses, invert, make_pose, relative_pose, rigid_flow,
@@ -208,6 +208,26 @@ def test_neighbours_by_hand():
     np.testing.assert_allclose(propagate(reference, values, np.array([[0.25, 0, 0]]), k=2), [[1.5]])
     np.testing.assert_allclose(propagate(reference, values, np.array([[3.0, 0, 0]]), k=2, radius=0.5), [[0.0]])
     assert chamfer_distance(reference, reference + [0, 0, 1.0]) == pytest.approx(2.0)
+
+
+def test_point_index_answers_as_scipy_ckdtree_does():
+    """The compiled tree finds the same neighbours at the same distances, with scipy's conventions for a bound (strictly
+    closer), for missing neighbours (inf, n) and for k above the number of points."""
+    from scipy.spatial import cKDTree
+
+    rng = np.random.default_rng(11)
+    for count, k, bound in ((500, 1, np.inf), (500, 1, 0.8), (500, 3, 1.5), (4, 6, np.inf), (1, 2, 0.5)):
+        points = rng.uniform(-10, 10, (count, 3))
+        query = rng.uniform(-12, 12, (300, 3)).astype(np.float32)
+        mine, theirs = PointIndex(points).query(query, k=k, distance_upper_bound=bound), cKDTree(points).query(
+            query, k=k, distance_upper_bound=bound)
+        np.testing.assert_array_equal(mine[1], theirs[1])
+        np.testing.assert_allclose(mine[0], theirs[0], rtol=1e-12)
+    on_bound = PointIndex(np.array([[0.0, 0, 0], [1, 0, 0]])).query(np.array([[0.5, 0, 0]]), distance_upper_bound=0.5)
+    assert np.isinf(on_bound[0][0]) and on_bound[1][0] == 2
+    empty = PointIndex(np.zeros((0, 3)))
+    assert empty.n == 0 and np.isinf(empty.query(np.ones((3, 3)))[0]).all() and (empty.query(np.ones((3, 3)))[1] == 0).all()
+    assert PointIndex(points).query(np.zeros((0, 3)), k=2)[0].shape == (0, 2)
 
 
 def test_may_be_near_keeps_every_point_within_reach_and_drops_far_ones():
