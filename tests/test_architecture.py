@@ -38,16 +38,12 @@ def top(name: str) -> str:
 
 
 ALL_PACKAGES = ("ssf_common", "ssf_bringup", "ssf_eval") + NODE_PACKAGES
-# Public names still defined in two places, each waiting for its change: the flow's rigid `Plan` beside the planner's
-# record, the flow and segmentation networks' training twins, helpers named alike in two layers, and the command-line
-# conventions. The list only shrinks: a name that became unique must leave it.
+# Public names still defined in two places, each waiting for its change: the flow's rigid `Plan` (points seen from
+# above, in core/rigid/pair.py) beside the planner's record, and the command-line conventions. The list only
+# shrinks: a name that became unique must leave it.
 KNOWN_TWINS = {
     "main", "register", "add_parser",  # the entry-point conventions: each console script, each package's commands
-    "Plan", "Batch", "Box", "Checkpoint", "Sample",
-    "SetAbstraction", "TrainResult", "angular_spacing", "bench_command", "build", "describe",
-    "evaluate", "format_table", "knn", "load", "make_sample", "mlp", "nearest_distance",
-    "run_bench", "run_estimate", "run_eval", "run_train", "save", "self_supervised_loss", "shipped_weights",
-    "surface_distance", "trajectory", "weighted_kabsch", "write_bin",
+    "Plan",
 }
 
 

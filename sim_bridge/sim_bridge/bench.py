@@ -64,7 +64,7 @@ def _measure_in_child(queue, scenario_name: str, agents: int, steps: int, seed: 
         queue.put(f"{type(err).__name__}: {err}")
 
 
-def run_bench(
+def run_bench_sim(
     scenario_name: str, agent_counts: list[int], steps: int, seed: int | None, warmup: int = 20, progress=None,
     overrides: dict | None = None,
 ) -> list[SimBenchRow]:

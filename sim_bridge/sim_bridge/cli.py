@@ -203,7 +203,7 @@ def _export(args: argparse.Namespace) -> int:
 
 
 def _bench(args: argparse.Namespace) -> int:
-    from sim_bridge.bench import run_bench
+    from sim_bridge.bench import run_bench_sim
     from sim_bridge.scenario import load_scenario
 
     try:
@@ -230,7 +230,7 @@ def _bench(args: argparse.Namespace) -> int:
         require_seed(args.seed)
     if args.json:
         check_writable(args.json, "--json figures")
-    rows = run_bench(args.scenario, counts, args.steps, args.seed, args.warmup, progress, overrides)
+    rows = run_bench_sim(args.scenario, counts, args.steps, args.seed, args.warmup, progress, overrides)
     payload = [asdict(row) for row in rows]
     print(dumps_strict(payload))
     if args.json:

@@ -238,10 +238,10 @@ def _rotate_columns(rotation: np.ndarray, vectors: np.ndarray) -> np.ndarray:
     return out
 
 
-def surface_distance(soup: TriangleSoup, points_world: np.ndarray) -> np.ndarray:
+def soup_distance(soup: TriangleSoup, points_world: np.ndarray) -> np.ndarray:
     """Unsigned distance from world points to a triangle soup."""
     o3d = import_open3d()
     return raycasting_scene(soup).compute_distance(o3d.core.Tensor(points_world.astype(np.float32))).numpy()
 
 
-__all__ = ["Lidar", "MIXED_GAP", "RayFan", "Scan", "PointClass", "ray_fan", "surface_distance", "raycasting_scene"]
+__all__ = ["Lidar", "MIXED_GAP", "RayFan", "Scan", "PointClass", "ray_fan", "soup_distance", "raycasting_scene"]

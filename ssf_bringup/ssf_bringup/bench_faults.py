@@ -353,7 +353,7 @@ def run_case(case: FaultCase, scenario: str, parameters: dict[str, dict[str, Any
         if injector is not None:
             injector.close()
         probe.close()
-    return evaluate(case, record, probe, window, drive, injector)
+    return evaluate_fault_case(case, record, probe, window, drive, injector)
 
 
 def _at_speed(probe: FaultProbe, episode: int, timing: Timing) -> bool:
@@ -410,8 +410,8 @@ def _solved_since(probe: FaultProbe, wall: float) -> bool:
         return any(state.wall > wall and state.status == "solved" for state in probe.states)
 
 
-def evaluate(case: FaultCase, record: FaultRecord, probe: FaultProbe, window: dict[str, float], drive: int,
-             injector: Injector | None) -> FaultRecord:
+def evaluate_fault_case(case: FaultCase, record: FaultRecord, probe: FaultProbe, window: dict[str, float], drive: int,
+                        injector: Injector | None) -> FaultRecord:
     """The case's figures from what the probe saw (see FaultRecord), and whether it passed."""
     fault, end = window["fault"], window["end"]
     with probe.lock:
@@ -542,7 +542,7 @@ TABLE_HEAD = ("| case | speed at fault (m/s) | onset after last fresh input (s) 
               "recovery (wall s) | planner's brake reasons | verdict |\n| --- | --- | --- | --- | --- | --- | --- | --- |")
 
 
-def bench_command(args: argparse.Namespace) -> int:
+def bench_faults_command(args: argparse.Namespace) -> int:
     """ssf bench faults."""
     from ssf_bringup.demo import check_scenario
     from ssf_common.jsonio import write_json
@@ -603,4 +603,4 @@ def add_parser(bench_commands: argparse._SubParsersAction) -> None:
     parser.add_argument("--logs", type=Path, help="write each case's graph output to DIR/CASE.log")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                         help="a node's parameter, e.g. -p ssf_fusion_node:fusion.max_iterations:=1 (repeatable)")
-    parser.set_defaults(func=bench_command)
+    parser.set_defaults(func=bench_faults_command)

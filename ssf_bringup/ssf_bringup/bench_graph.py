@@ -313,8 +313,8 @@ def node_rows(probe: Probe, samples: dict[str, list[tuple[float, float, float, f
     return rows
 
 
-def run_bench(duration_s: float, scenario: str = "urban_200", log: Any = None, episodes: int = 1,
-              parameters: dict[str, dict[str, Any]] | None = None) -> GraphBench:
+def run_bench_graph(duration_s: float, scenario: str = "urban_200", log: Any = None, episodes: int = 1,
+                    parameters: dict[str, dict[str, Any]] | None = None) -> GraphBench:
     """Start the graph, measure for duration_s after the warm-up, stop it, compute the figures."""
     graph = bench_graph_spec(scenario, episodes, parameters)
     launcher = Launcher(graph, output=log or io.StringIO())
@@ -387,7 +387,7 @@ def format_bench(bench: GraphBench) -> str:
     return "\n".join(lines)
 
 
-def bench_command(args: argparse.Namespace) -> int:
+def bench_graph_command(args: argparse.Namespace) -> int:
     """ssf bench graph."""
     from ssf_bringup.demo import check_scenario
     from ssf_common.checks import require_finite
@@ -404,7 +404,7 @@ def bench_command(args: argparse.Namespace) -> int:
     bench_graph_spec(args.scenario, args.episodes, parameters)  # unknown node names fail here, before any process
     print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
           file=sys.stderr)
-    bench = run_bench(duration, args.scenario, sys.stderr if args.verbose else None, args.episodes, parameters)
+    bench = run_bench_graph(duration, args.scenario, sys.stderr if args.verbose else None, args.episodes, parameters)
     print(format_bench(bench))
     if args.json:
         write_json(args.json, asdict(bench))
@@ -430,4 +430,4 @@ def add_parser(bench_commands: argparse._SubParsersAction) -> None:
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NODE:NAME:=VALUE",
                         help="a node's parameter, e.g. -p ssf_fusion_node:fusion.max_iterations:=1 (repeatable)")
     parser.add_argument("--verbose", action="store_true", help="show the nodes' output")
-    parser.set_defaults(func=bench_command)
+    parser.set_defaults(func=bench_graph_command)

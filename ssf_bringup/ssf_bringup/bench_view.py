@@ -79,7 +79,7 @@ class _Client:
         self._thread.join(timeout=5.0)
 
 
-def run_bench(points: int, rate_hz: float, duration_s: float, say: Any) -> ViewBench:
+def run_bench_view(points: int, rate_hz: float, duration_s: float, say: Any) -> ViewBench:
     """Serve the bench topic with `ssf view`, publish, and measure both paths."""
     import psutil
 
@@ -143,10 +143,10 @@ def add_parser(bench: argparse._SubParsersAction) -> None:
     parser.add_argument("--rate", type=float, default=10.0, help="clouds per second (default 10)")
     parser.add_argument("--duration", type=float, default=20.0, help="seconds of publishing (default 20)")
     parser.add_argument("--json", metavar="FILE", help="also write the figures to FILE")
-    parser.set_defaults(func=bench_command)
+    parser.set_defaults(func=bench_view_command)
 
 
-def bench_command(args: argparse.Namespace) -> int:
+def bench_view_command(args: argparse.Namespace) -> int:
     """Handler of `ssf bench view`."""
     from ssf_common.checks import require_finite
     from ssf_common.errors import ConfigError
@@ -162,7 +162,7 @@ def bench_command(args: argparse.Namespace) -> int:
         raise ConfigError(f"--rate {rate:g} for --duration {duration:g} s sends no cloud; send at least one")
     if args.json:
         check_writable(args.json, "--json figures")
-    result = run_bench(args.points, rate, duration, lambda text: print(f"bench view: {text}", file=sys.stderr))
+    result = run_bench_view(args.points, rate, duration, lambda text: print(f"bench view: {text}", file=sys.stderr))
     print(dumps_strict(asdict(result)))
     if args.json:
         write_json(args.json, asdict(result))

@@ -127,6 +127,6 @@ def _register_bench_commands(groups: CommandGroups) -> None:
 
 
 def _bench_transport(args: argparse.Namespace) -> int:
-    from ssf_common.bench_transport import bench_command
+    from ssf_common.bench_transport import bench_transport_command
 
-    return bench_command(args)
+    return bench_transport_command(args)

@@ -134,7 +134,7 @@ def percentile(values: list[float], q: float) -> float:
     return float(np.percentile(values, q)) if values else float("nan")
 
 
-def run_bench(rate_hz: float = 10.0, duration_s: float = 20.0, progress: Any = None) -> TransportBench:
+def run_bench_transport(rate_hz: float = 10.0, duration_s: float = 20.0, progress: Any = None) -> TransportBench:
     """All transport figures of the issue's table."""
     say = progress or (lambda text: None)
     say("timing serialisation of 131072 points")
@@ -160,7 +160,7 @@ def run_bench(rate_hz: float = 10.0, duration_s: float = 20.0, progress: Any = N
     )
 
 
-def bench_command(args: argparse.Namespace) -> int:
+def bench_transport_command(args: argparse.Namespace) -> int:
     """Handler of `ssf bench transport`."""
     from ssf_common.checks import require_finite
     from ssf_common.errors import ConfigError
@@ -173,7 +173,8 @@ def bench_command(args: argparse.Namespace) -> int:
         raise ConfigError(f"--rate {rate:g} for --duration {duration:g} s sends no cloud; send at least one")
     if args.json:
         check_writable(args.json, "--json figures")
-    result = run_bench(rate, duration, progress=lambda text: print(f"bench transport: {text}", file=sys.stderr))
+    result = run_bench_transport(rate, duration,
+                                 progress=lambda text: print(f"bench transport: {text}", file=sys.stderr))
     print(dumps_strict(asdict(result)))
     if args.json:
         write_json(args.json, asdict(result))

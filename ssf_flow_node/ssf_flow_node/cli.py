@@ -24,7 +24,7 @@ def register(groups: CommandGroups) -> None:
     estimate.add_argument("--mask", type=Path, help=".npy or text file: one dynamic probability (0..1) per point of PC1")
     estimate.add_argument("--out", type=Path, required=True, help="output FLOW.npy")
     add_estimator_options(estimate)
-    estimate.set_defaults(func=run_estimate)
+    estimate.set_defaults(func=run_estimate_flow)
 
     train = groups.train.add_parser("flow", help="train the ASF-style scene flow network",
                                     description="Supervised (multi-scale EPE) or self-supervised (Chamfer + smoothness) "
@@ -43,7 +43,7 @@ def register(groups: CommandGroups) -> None:
     train.add_argument("--config", type=Path, help="training config YAML (dotted names as in the checkpoint)")
     train.add_argument("-p", "--param", "--set", dest="param", action="append", default=[], metavar="NAME:=VALUE",
                        help="override one training config value, e.g. -p lr:=5e-4")
-    train.set_defaults(func=run_train)
+    train.set_defaults(func=run_train_flow)
 
 
 def read_mask(path: Path, count: int):
@@ -66,7 +66,7 @@ def read_mask(path: Path, count: int):
     return values.astype(np.float32).reshape(count)
 
 
-def run_estimate(args: argparse.Namespace) -> int:
+def run_estimate_flow(args: argparse.Namespace) -> int:
     """ssf flow estimate."""
     import numpy as np
 
@@ -87,7 +87,7 @@ def run_estimate(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_train(args: argparse.Namespace) -> int:
+def run_train_flow(args: argparse.Namespace) -> int:
     """ssf train flow."""
     from ssf_common.config import load, parse_overrides
     from ssf_common.dataset.pairs import pair_files

@@ -34,10 +34,10 @@ def register(groups: CommandGroups) -> None:
     train.add_argument("--config", type=Path, help="training config YAML (dotted names as in the checkpoint)")
     train.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                        help="override one training config value, e.g. -p losses.motion:=10")
-    train.set_defaults(func=run_train)
+    train.set_defaults(func=run_train_seg)
 
 
-def run_train(args: argparse.Namespace) -> int:
+def run_train_seg(args: argparse.Namespace) -> int:
     """ssf train seg."""
     from ssf_common.config import load, parse_overrides
     from ssf_common.dataset.pairs import pair_files

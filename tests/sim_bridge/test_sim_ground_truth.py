@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ssf_common.geometry.se3 import relative_pose as relative_motion
-from sim_bridge.lidar import surface_distance
+from sim_bridge.lidar import soup_distance
 from sim_bridge.meshes import TriangleSoup
 from sim_bridge.sensors import sensor_names
 from sim_bridge.simulator import Frame, Simulator
@@ -105,11 +105,11 @@ def test_the_scan_lies_on_the_surfaces_where_they_are_at_each_points_time(consec
     scan = first.scan
     surfaces = TriangleSoup.merge([sim.lidar.static, sim.agent_surfaces(first.agents)])
     world = _in_world_at_stamp(first, scan.points.astype(np.float64), scan.time, scan.instance)
-    distance = surface_distance(surfaces, world)
+    distance = soup_distance(surfaces, world)
     assert np.percentile(distance, 99.9) < 1e-3 and distance.max() < 5e-3
     if scan.time.any():  # taken from where the sensor was at the time: from the stamp's pose it would be off
         off_ground = scan.label != 0  # along the ground, a point stays on the ground wherever it is taken from
-        wrong = surface_distance(surfaces, _apply(first.pose, scan.points[off_ground].astype(np.float64)))
+        wrong = soup_distance(surfaces, _apply(first.pose, scan.points[off_ground].astype(np.float64)))
         assert (wrong > 0.05).mean() > 0.1  # walls and poles facing the motion are off by up to ~0.5 m
 
 
@@ -117,7 +117,7 @@ def test_scan_plus_flow_lies_on_the_next_surfaces(consecutive):
     sim, first, second = consecutive
     surfaces = TriangleSoup.merge([sim.lidar.static, sim.agent_surfaces(second.agents)])
     landed = first.scan.points.astype(np.float64) + second.flow.flow
-    distance = surface_distance(surfaces, _in_world_at_stamp(second, landed, first.scan.time, first.scan.instance))
+    distance = soup_distance(surfaces, _in_world_at_stamp(second, landed, first.scan.time, first.scan.instance))
     assert np.percentile(distance, 99.9) < 1e-3
     assert distance.max() < 5e-3  # float32 coordinates at up to 100 m
     dynamic = second.flow.dynamic

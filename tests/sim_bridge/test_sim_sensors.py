@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from sim_bridge.agents import agent_mesh
-from sim_bridge.lidar import MIXED_GAP, Lidar, ray_fan, raycasting_scene, surface_distance
+from sim_bridge.lidar import MIXED_GAP, Lidar, ray_fan, raycasting_scene, soup_distance
 from sim_bridge.meshes import TriangleSoup
 from sim_bridge.node import SimBridgeNode
 from sim_bridge.ros_messages import scan_cloud
@@ -212,8 +212,8 @@ def test_mixed_points_move_rigidly_with_the_surface_nearer_along_their_beam(smal
         else:
             before = sim.agent_surfaces(frame.agents.take(np.array([k - 1])))
             after = sim.agent_surfaces(following.agents.take(np.array([k - 1])))
-        at_t = surface_distance(before, transform_points(frame.pose, points[mine]))
-        at_next = surface_distance(after, transform_points(following.pose, landed[mine]))
+        at_t = soup_distance(before, transform_points(frame.pose, points[mine]))
+        at_next = soup_distance(after, transform_points(following.pose, landed[mine]))
         np.testing.assert_allclose(at_next, at_t, atol=2e-3)
         checked += int(mine.sum())
     moving = following.flow.dynamic[mixed]

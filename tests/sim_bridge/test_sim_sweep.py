@@ -13,7 +13,7 @@ import pytest
 from sim_bridge.agent_rays import MovingAgentCaster, Pairs
 from sim_bridge.agents import AgentKind, AgentStates, agent_mesh
 from sim_bridge.ego import EgoVehicle, VelocityCommand
-from sim_bridge.lidar import Lidar, ray_fan, surface_distance
+from sim_bridge.lidar import Lidar, ray_fan, soup_distance
 from sim_bridge.meshes import TriangleSoup
 from sim_bridge.node import SimBridgeNode
 from sim_bridge.ros_messages import scan_cloud
@@ -98,8 +98,8 @@ def test_each_ray_meets_a_moving_car_where_the_car_is_when_the_ray_fires():
         sweep.agent_poses(np.zeros(on_car.sum(), int), time))
     carried = np.einsum("nij,nj->ni", to_stamp[:, :3, :3], world) + to_stamp[:, :3, 3]
     car = agent_mesh(after, np.zeros(2), 100.0)
-    assert surface_distance(car, carried).max() < 1e-3  # on the car as it was when each ray fired
-    assert np.median(surface_distance(car, world)) > 0.2  # not where it is at the stamp: it came ~0.5 m closer
+    assert soup_distance(car, carried).max() < 1e-3  # on the car as it was when each ray fired
+    assert np.median(soup_distance(car, world)) > 0.2  # not where it is at the stamp: it came ~0.5 m closer
 
 
 def test_a_sweep_in_which_nothing_moves_is_the_instant_sweep(small_scenario):

@@ -12,7 +12,7 @@ import pytest
 from ssf_bringup.bench_graph import Probe
 from ssf_common import topics
 from ssf_bringup.bench_faults import (Arrival, FaultCase, FaultRecord, StateSample, Timing, TruthSample, campaign,
-                                     case_graph, evaluate, format_row, run_case, select, verdict)
+                                     case_graph, evaluate_fault_case, format_row, run_case, select, verdict)
 from ssf_bringup.launcher import load_graph
 from ssf_common.diagnostics import Level
 from ssf_common.errors import ConfigError
@@ -77,8 +77,8 @@ class ScriptedProbe:
 
 def test_onset_and_stop_are_measured_from_the_last_fresh_input_on_simulated_time():
     case = FaultCase("kill", "flow", "realtime", 1)
-    record = evaluate(case, FaultRecord(case.name, "kill", "flow", "realtime", 1), ScriptedProbe(),
-                      {"fault": 95.06, "end": 130.0, "recovered": 134.5}, 1, None)
+    record = evaluate_fault_case(case, FaultRecord(case.name, "kill", "flow", "realtime", 1), ScriptedProbe(),
+                                 {"fault": 95.06, "end": 130.0, "recovered": 134.5}, 1, None)
     assert record.last_fresh_s == 5.05 and record.onset_s == pytest.approx(0.3) and record.onset_by == "planner"
     # from 5.05 s: 0.25 s at 8 m/s, then a step of 0.6 m/s each 0.1 s: 0.1 * (2.5 * 8 + 7.4 + 6.8 + ... + 0.2)
     assert record.stopped and record.stop_distance_m == pytest.approx(0.1 * (20.0 + sum(8.0 - 0.6 * k for k in range(1, 14))))
@@ -127,8 +127,8 @@ def test_an_array_fault_counts_from_the_last_array_passed_before_it_not_after_it
     probe = ScriptedProbe()
     probe.states = [StateSample(95.35 + 0.1 * k, (53 + k) * S // 10, (53 + k) * S // 10, "brake",
                                 "stale_obstacles (obstacles 0.30 s old)", 2.0) for k in range(5)]
-    record = evaluate(case, FaultRecord(case.name, "nan", "obstacles", "realtime", 1), probe,
-                      {"fault": 95.06, "end": 130.0, "recovered": 131.0}, 1, injector)
+    record = evaluate_fault_case(case, FaultRecord(case.name, "nan", "obstacles", "realtime", 1), probe,
+                                 {"fault": 95.06, "end": 130.0, "recovered": 131.0}, 1, injector)
     assert record.last_fresh_s == 5.05 and record.onset_s == pytest.approx(0.3) and record.stopped
     assert record.brake_reasons == ["stale_obstacles"] and record.passed, record.note
 
@@ -137,7 +137,7 @@ def test_a_planner_that_dies_while_the_car_stands_leaves_it_standing():
     case = FaultCase("kill", "planner", "realtime", 1)
     probe = ScriptedProbe()
     probe.drives = [[TruthSample(k * S // 10, 0.0, 0.0, 0.0) for k in range(80)]]
-    record = evaluate(case, FaultRecord(case.name, "kill", "planner", "realtime", 1), probe,
-                      {"fault": 95.06, "end": 130.0, "recovered": 131.0}, 1, None)
+    record = evaluate_fault_case(case, FaultRecord(case.name, "kill", "planner", "realtime", 1), probe,
+                                 {"fault": 95.06, "end": 130.0, "recovered": 131.0}, 1, None)
     assert record.onset_by == "standing" and record.onset_s is None and record.stopped
     assert record.stop_distance_m == 0.0 and record.passed, record.note

@@ -3,7 +3,7 @@ interpolation."""
 
 import torch
 
-from ssf_common.geometry.torch_ops import (ball_group, farthest_points, farthest_torch, gather, interpolate, knn,
+from ssf_common.geometry.torch_ops import (ball_group, batched_knn, farthest_points, farthest_torch, gather, interpolate,
                                            knn_chunked, knn_kdtree)
 
 
@@ -45,4 +45,4 @@ def test_ball_group_keeps_neighbours_inside_the_radius_nearest_first():
     index = ball_group(query, reference, 3, radius=1.0)
     assert index[0, 0].tolist() == [0, 1, 0]  # the point at 3 m is beyond the radius: the nearest repeats
     assert index[0, 1].tolist() == [3, 3, 3]
-    assert torch.equal(ball_group(query, reference, 3, radius=100.0), knn(query, reference, 3))
+    assert torch.equal(ball_group(query, reference, 3, radius=100.0), batched_knn(query, reference, 3))

@@ -283,12 +283,12 @@ def test_a_tiny_campaign_on_ray_in_local_mode(tmp_path):
 
 
 def test_the_table_and_the_figure(tmp_path):
-    from ssf_eval.nav.cli import format_failures, format_table
+    from ssf_eval.nav.cli import format_failures, format_nav_table
     from ssf_eval.nav.plot import plot_cells
 
     records = [fake_trial(spec) for spec in campaign_specs(["gt", "ssf"], [50, 100], 4, seed=0)]
     cells = summarise(records)
-    table = format_table(cells)
+    table = format_nav_table(cells)
     assert "| gt | 50 | 0.50 (0.15–0.85) | 10.0 | 6.00 | 7.50 | 2 | 0 | 0 |" in table
     failures = format_failures(records).splitlines()
     assert failures[0] == "failed trials (seed: outcome):" and len(failures) == 5  # four cells, odd seeds fail

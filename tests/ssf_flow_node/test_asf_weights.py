@@ -6,7 +6,7 @@ import torch
 
 from ssf_common.config import build
 from ssf_common.errors import DataError
-from ssf_flow_node.core.asf.checkpoint import shipped_weights
+from ssf_flow_node.core.asf.checkpoint import shipped_asf_weights
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import MaskStrategy
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
@@ -21,7 +21,7 @@ def pair():
 
 @pytest.mark.parametrize("strategy", list(MaskStrategy))
 def test_shipped_weights_exist_and_load(strategy):
-    assert shipped_weights(strategy).stat().st_size < 8_000_000
+    assert shipped_asf_weights(strategy).stat().st_size < 8_000_000
     assert make_estimator(f"asf-{strategy.value}").name == f"asf-{strategy.value}"
 
 
@@ -55,7 +55,8 @@ def test_shipped_networks_read_the_mask_as_their_strategy_says(pair, strategy, r
 def test_missing_or_wrong_weights_are_data_errors(tmp_path):
     with pytest.raises(DataError, match="no such weights file"):
         make_estimator("asf", build(FlowConfig, {"asf.weights": str(tmp_path / "none.pt")}))
+    weights = str(shipped_asf_weights(MaskStrategy.EXPLICIT))
     with pytest.raises(DataError, match="strategy"):
-        make_estimator("asf-points", build(FlowConfig, {"asf.weights": str(shipped_weights(MaskStrategy.EXPLICIT))}))
+        make_estimator("asf-points", build(FlowConfig, {"asf.weights": weights}))
     with pytest.raises(DataError, match="unknown mask strategy"):
         make_estimator("asf-fancy")

@@ -57,10 +57,10 @@ def test_train_runs_and_resumes(export_dir, tmp_path):
             "-p", "network.cost_width:=[8,8,8,8]", "-p", "network.flow_width:=16", "-p", "points:=512"]
     assert main(["train", "flow", "--data", str(export_dir), "--out", str(out), "--steps", "2", "--batch-size", "1",
                  "--strategy", "points", *tiny]) == 0
-    assert checkpoint.load(out).state["step"] == 2
-    first = {name: value.clone() for name, value in checkpoint.load(out).network.state_dict().items()}
+    assert checkpoint.load_asf_checkpoint(out).state["step"] == 2
+    first = {name: value.clone() for name, value in checkpoint.load_asf_checkpoint(out).network.state_dict().items()}
     assert main(["train", "flow", "--data", str(export_dir), "--out", str(out), "--resume", str(out), "--steps", "3"]) == 0
-    resumed = checkpoint.load(out)
+    resumed = checkpoint.load_asf_checkpoint(out)
     assert resumed.state["step"] == 3 and resumed.config.strategy.value == "points" and resumed.config.flow_width == 16
     assert any(not (value == first[name]).all() for name, value in resumed.network.state_dict().items())
     assert main(["flow", "estimate", str(export_dir / "pair_0000.npz"), str(export_dir / "pair_0000.npz"),

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ssf_common.config import build
-from ssf_common.dataset.synthetic import Box, sample_box, sample_ground, synthetic_pair
+from ssf_common.dataset.synthetic import SyntheticBox, sample_box, sample_ground, synthetic_pair
 from ssf_common.geometry.ground import ground_mask
 from ssf_common.geometry.se3 import make_pose, rigid_flow, transform_points
 from ssf_eval.flow.metrics import flow_metrics, score_flow
@@ -101,10 +101,11 @@ def convoy_scans(step: float = 0.45, seed: int = 0):
     """A street where cars all around the ego move with it (a queue driving along): scan t, scan t+1, the cars'
     points of each, and the true ego motion."""
     rng = np.random.default_rng(seed)
-    poles = [Box(np.array([x, side * 9.0, 0.0]), np.array([0.4, 0.4, 4.0]), 0.0) for x in (-20.0, -5.0, 12.0, 27.0)
+    poles = [SyntheticBox(np.array([x, side * 9.0, 0.0]), np.array([0.4, 0.4, 4.0]), 0.0)
+             for x in (-20.0, -5.0, 12.0, 27.0)
              for side in (-1, 1)]
-    cars = [Box(np.array([x, lane, 0.0]), np.array([4.5, 1.9, 1.6]), 0.0) for x in (-14.0, -7.0, 7.0, 14.0)
-            for lane in (-3.5, 3.5)] + [Box(np.array([x, 0.0, 0.0]), np.array([4.5, 1.9, 1.6]), 0.0) for x in (-7.5, 7.5)]
+    cars = [SyntheticBox(np.array([x, lane, 0.0]), np.array([4.5, 1.9, 1.6]), 0.0) for x in (-14.0, -7.0, 7.0, 14.0)
+            for lane in (-3.5, 3.5)] + [SyntheticBox(np.array([x, 0.0, 0.0]), np.array([4.5, 1.9, 1.6]), 0.0) for x in (-7.5, 7.5)]
 
     def scan(sensor_x: float) -> tuple[np.ndarray, np.ndarray]:
         eye = np.array([sensor_x, 0.0, 1.8])

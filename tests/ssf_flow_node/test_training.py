@@ -61,7 +61,7 @@ def test_checkpoint_carries_config_and_resumes(data, tmp_path):
     out = tmp_path / "run.pt"
     Trainer(tiny_config(steps=3, network=TINY.model_copy(update={"strategy": MaskStrategy.IMPLICIT})),
             pair_files(data), out, log=lambda line: None).run()
-    saved = checkpoint.load(out)
+    saved = checkpoint.load_asf_checkpoint(out)
     assert saved.config.strategy is MaskStrategy.IMPLICIT and saved.config.points == TINY.points
     assert saved.training["steps"] == 3 and saved.state["step"] == 3
     resumed = Trainer.resume(out, pair_files(data), out, steps=5, log=lambda line: None)
@@ -85,12 +85,12 @@ def test_ctrl_c_stops_training_at_the_next_step_and_saves_it(data, tmp_path):
 
     trainer.batch = batch
     assert trainer.run().step == 2
-    assert checkpoint.load(tmp_path / "stopped.pt").state["step"] == 2
+    assert checkpoint.load_asf_checkpoint(tmp_path / "stopped.pt").state["step"] == 2
 
 
 def test_saved_weights_load_into_an_estimator(data, tmp_path):
     out = tmp_path / "weights.pt"
-    checkpoint.save(out, AsfNet(TINY), tiny_config().model_dump(mode="json"))
+    checkpoint.save_asf_checkpoint(out, AsfNet(TINY), tiny_config().model_dump(mode="json"))
     config = FlowConfig()
     estimator = AsfFlowEstimator.load(out, config.preprocess, config.registration)
     pair = read_pair(pair_files(data)[0])
@@ -102,19 +102,19 @@ def test_saved_weights_load_into_an_estimator(data, tmp_path):
 
 def test_bad_weights_files_are_data_errors(tmp_path):
     with pytest.raises(DataError, match="no such weights file"):
-        checkpoint.load(tmp_path / "missing.pt")
+        checkpoint.load_asf_checkpoint(tmp_path / "missing.pt")
     garbage = tmp_path / "garbage.pt"
     garbage.write_bytes(b"\x00not a checkpoint" * 10)
     with pytest.raises(DataError, match="not a readable weights file"):
-        checkpoint.load(garbage)
+        checkpoint.load_asf_checkpoint(garbage)
     foreign = tmp_path / "foreign.pt"
     torch.save({"state_dict": {}}, foreign)
     with pytest.raises(DataError, match="not an ssf asf checkpoint"):
-        checkpoint.load(foreign)
+        checkpoint.load_asf_checkpoint(foreign)
     mismatched = tmp_path / "mismatched.pt"
-    checkpoint.save(mismatched, AsfNet(TINY), {})
+    checkpoint.save_asf_checkpoint(mismatched, AsfNet(TINY), {})
     payload = torch.load(mismatched, weights_only=True)
     payload["network"]["flow_width"] = 32
     torch.save(payload, mismatched)
     with pytest.raises(DataError, match="do not fit"):
-        checkpoint.load(mismatched)
+        checkpoint.load_asf_checkpoint(mismatched)

@@ -167,10 +167,10 @@ def test_a_flood_of_obstacles_is_cut_to_the_nearest_and_the_car_still_stops_for_
 
 
 def test_the_plan_bench_drives_a_flood_through_the_planners_own_selection():
-    from ssf_planner_node.core.bench import run_bench
+    from ssf_planner_node.core.bench import run_bench_planner
 
     config = build(PlannerConfig, {})
-    flood, few = run_bench(config, 10_000, ticks=3), run_bench(config, 20, ticks=3)
+    flood, few = run_bench_planner(config, 10_000, ticks=3), run_bench_planner(config, 20, ticks=3)
     assert (flood.obstacles, flood.max_obstacles, flood.max_considered, flood.ticks) == (10_000, 10, 200, 3)
     assert few.max_obstacles == 20  # up to 50 obstacles every one is in the problem, as before
 

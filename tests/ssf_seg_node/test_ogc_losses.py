@@ -6,7 +6,7 @@ import torch
 
 from ssf_common.geometry.se3 import make_pose
 from ssf_seg_node.core.ogc.losses import (chamfer_loss, consistency_loss, motion_loss, narrower, neighbourhood,
-                                          rigid_mixture, slot_motions, smoothness_loss, weighted_kabsch)
+                                          rigid_mixture, slot_kabsch, slot_motions, smoothness_loss)
 
 
 def moved(points: torch.Tensor, pose: np.ndarray) -> torch.Tensor:
@@ -30,7 +30,7 @@ def two_bodies():
 
 def test_kabsch_recovers_each_slot_motion(two_bodies):
     points, flow, masks = two_bodies
-    motions = weighted_kabsch(points, points + flow, masks)
+    motions = slot_kabsch(points, points + flow, masks)
     expected = make_pose(-0.5, 1.0, 0.0, -0.2)
     np.testing.assert_allclose(motions.rotation[0, 1].numpy(), expected[:3, :3], atol=1e-5)
     np.testing.assert_allclose(motions.translation[0, 1].numpy(), expected[:3, 3], atol=1e-4)
@@ -43,7 +43,7 @@ def test_kabsch_fixes_reflections_and_gives_empty_slots_the_identity():
     mirrored = points * torch.tensor([1.0, 1.0, -1.0])  # no rotation maps a cloud onto its mirror image
     masks = torch.zeros(1, 50, 2)
     masks[..., 0] = 1.0  # slot 1 holds nothing
-    motions = weighted_kabsch(points, mirrored, masks)
+    motions = slot_kabsch(points, mirrored, masks)
     assert torch.det(motions.rotation[0, 0]).item() == pytest.approx(1.0, abs=1e-5)
     assert torch.equal(motions.rotation[0, 1], torch.eye(3)) and torch.equal(motions.translation[0, 1], torch.zeros(3))
 
@@ -52,7 +52,7 @@ def test_kabsch_is_differentiable_in_the_weights(two_bodies):
     points, flow, right = two_bodies
     logits = torch.zeros(1, 300, 2, requires_grad=True)
     weights = torch.softmax(logits + 4.0 * right, dim=-1)
-    motions = weighted_kabsch(points, points + flow, weights)
+    motions = slot_kabsch(points, points + flow, weights)
     (motions.translation.sum() + motions.rotation.sum()).backward()
     assert torch.isfinite(logits.grad).all() and logits.grad.abs().sum() > 0
 

@@ -68,15 +68,15 @@ def test_checkpoint_round_trip_and_bad_files(tmp_path):
     torch.manual_seed(0)
     net = OgcNet(OgcConfig(input=SegInput.FLOW, **SMALL))
     path = tmp_path / "net.pt"
-    checkpoint.save(path, NetworkKind.OGC, net, {"steps": 3}, {"step": 3})
-    loaded = checkpoint.load(path)
+    checkpoint.save_seg_checkpoint(path, NetworkKind.OGC, net, {"steps": 3}, {"step": 3})
+    loaded = checkpoint.load_seg_checkpoint(path)
     assert loaded.kind is NetworkKind.OGC and loaded.config == net.config and loaded.training == {"steps": 3}
     points, flow = clouds()
     assert torch.allclose(loaded.network.predict(points, flow), net.eval()(points, flow))
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     for bad, message in ((tmp_path / "missing.pt", "no such weights file"), (tmp_path / "junk.pt", "not a readable")):
         with pytest.raises(DataError, match=message):
-            checkpoint.load(bad)
+            checkpoint.load_seg_checkpoint(bad)
     torch.save({"format": "something else"}, tmp_path / "foreign.pt")
     with pytest.raises(DataError, match="not an ssf segmentation network"):
-        checkpoint.load(tmp_path / "foreign.pt")
+        checkpoint.load_seg_checkpoint(tmp_path / "foreign.pt")

@@ -58,7 +58,7 @@ def test_checkpoints_carry_their_config_and_resume_with_validation_history(data,
                          validation=pair_files(data), log=lines.append)
     trainer.run()
     assert any("validation: accuracy" in line for line in lines)
-    saved = checkpoint.load(out)
+    saved = checkpoint.load_seg_checkpoint(out)
     assert saved.kind is NetworkKind.OGC and saved.state["step"] == 4 and len(saved.state["validation"]) == 2
     assert SegTrainConfig.model_validate(saved.training) == trainer.config
     resumed = SegTrainer.resume(out, pair_files(data), out, pair_files(data), steps=6, log=lambda line: None)
@@ -67,7 +67,7 @@ def test_checkpoints_carry_their_config_and_resume_with_validation_history(data,
         assert torch.equal(value, trainer.network.state_dict()[name]), name
     assert resumed.run().step == 6
     bare = tmp_path / "bare.pt"
-    checkpoint.save(bare, NetworkKind.OGC, trainer.network, trainer.config.model_dump(mode="json"))
+    checkpoint.save_seg_checkpoint(bare, NetworkKind.OGC, trainer.network, trainer.config.model_dump(mode="json"))
     with pytest.raises(DataError, match="no optimizer state"):
         SegTrainer.resume(bare, pair_files(data), out)
 
@@ -91,7 +91,7 @@ def test_a_signal_stops_training_at_the_next_step_and_saves_it(data, tmp_path):
     trainer.batch = batch
     handler = signal.getsignal(signal.SIGTERM)
     assert trainer.run().step == 3
-    assert checkpoint.load(tmp_path / "stopped.pt").state["step"] == 3
+    assert checkpoint.load_seg_checkpoint(tmp_path / "stopped.pt").state["step"] == 3
     assert "stopped at step 3 by a signal" in lines[-1]
     assert signal.getsignal(signal.SIGTERM) is handler  # the job's handler is gone with the job
 
@@ -114,7 +114,7 @@ def test_commands_cache_the_flow_then_train_and_resume(data, tmp_path, capsys):
     assert main(argv) == 0
     assert "validation: accuracy" in capsys.readouterr().err
     assert main(["train", "seg", "--data", str(data), "--out", str(out), "--resume", str(out), "--steps", "3"]) == 0
-    assert checkpoint.load(out).state["step"] == 3
+    assert checkpoint.load_seg_checkpoint(out).state["step"] == 3
     assert main(["train", "seg", "--data", str(data), "--out", str(tmp_path / "y.pt"), "--flow", "asf-none"]) == 2
     assert "ssf train seg-flow" in capsys.readouterr().err
 

@@ -7,7 +7,7 @@ from ssf_common.dataset.pairs import PointClass
 from ssf_common.dataset.synthetic import synthetic_pair
 from ssf_common.geometry.se3 import rigid_flow
 from ssf_seg_node.core.base import SegInput
-from ssf_seg_node.core.ogc.checkpoint import WEIGHTS_DIR, NetworkKind, load, shipped_weights
+from ssf_seg_node.core.ogc.checkpoint import WEIGHTS_DIR, NetworkKind, load_seg_checkpoint, shipped_seg_weights
 from ssf_seg_node.core.segmenter import make_segmenter
 
 SHIPPED = [(kind, kind_input) for kind in NetworkKind for kind_input in SegInput]
@@ -23,7 +23,7 @@ def pair():
 
 @pytest.mark.parametrize("kind, kind_input", SHIPPED)
 def test_shipped_weights_load_with_their_training_config(kind, kind_input):
-    saved = load(shipped_weights(kind, kind_input))
+    saved = load_seg_checkpoint(shipped_seg_weights(kind, kind_input))
     assert saved.kind is kind and saved.config.input is kind_input
     assert saved.training["method"] == kind.value and saved.training["network"]["input"] == kind_input.value
     assert saved.state["step"] > 0 and saved.state["validation"]  # how far it trained, and how it validated

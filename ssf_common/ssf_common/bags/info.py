@@ -14,7 +14,7 @@ if TYPE_CHECKING:
 EXIT_PROBLEM = 1
 
 
-def describe(info: BagInfo, timeline: Timeline | None = None) -> str:
+def describe_bag(info: BagInfo, timeline: Timeline | None = None) -> str:
     """Human-readable table of a bag (start, end and duration of its plausible span when a timeline is given)."""
     label = 19
     if timeline is not None and timeline.outside:
@@ -106,7 +106,7 @@ def run_info(args: argparse.Namespace) -> int:
     with open_bag(args.path) as bag:
         info, timeline = bag.info, bag.timeline
         unknown = sorted(f"{t.name} ({t.type_name or 'no type'})" for t in info.topics if t.type_name in bag.unknown_types)
-    print(dumps_strict(to_json(info, timeline)) if args.json else describe(info, timeline))
+    print(dumps_strict(to_json(info, timeline)) if args.json else describe_bag(info, timeline))
     problems = [f"damaged, {info.message_count} messages readable: {'; '.join(info.damage)}"] if info.damage else []
     if unknown:
         problems.append(f"types unknown and not embedded, messages cannot be decoded: {', '.join(unknown)}")

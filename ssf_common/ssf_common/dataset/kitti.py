@@ -87,11 +87,6 @@ def read_bin(path: str | Path) -> np.ndarray:
     return scans.read_scan(path)
 
 
-def write_bin(path: str | Path, points: np.ndarray, intensity: np.ndarray) -> None:
-    """Write a KITTI .bin scan: float32 x, y, z, intensity."""
-    scans.write_bin(path, np.c_[points, intensity])
-
-
 class KittiSequence:
     """A sequence folder with velodyne/*.bin and poses.txt (poses: world <- sensor of each scan)."""
 
@@ -134,7 +129,7 @@ class SequenceWriter:
 
     def add(self, index: int, points: np.ndarray, intensity: np.ndarray, pose: np.ndarray) -> None:
         """Write scan `index` (sensor frame) taken at `pose` (world <- sensor)."""
-        write_bin(self.velodyne / f"{index:06d}.bin", points, intensity)
+        scans.write_bin(self.velodyne / f"{index:06d}.bin", np.c_[points, intensity])
         self.poses.append(np.asarray(pose, dtype=np.float64))
 
     def close(self) -> np.ndarray:

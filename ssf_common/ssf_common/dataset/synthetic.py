@@ -10,7 +10,7 @@ from ssf_common.dataset.pairs import PointClass, ScanPair, make_pair
 from ssf_common.geometry.se3 import make_pose as pose
 
 
-class Box(NamedTuple):
+class SyntheticBox(NamedTuple):
     """An upright box: centre (x, y, z of its base), size (length, width, height), yaw."""
 
     centre: np.ndarray
@@ -32,7 +32,8 @@ def sample_ground(rng: np.random.Generator, count: int, centre: np.ndarray) -> n
     return np.column_stack([xy, z])
 
 
-def sample_box(rng: np.random.Generator, box: Box, count: int, viewpoint: np.ndarray | None = None) -> np.ndarray:
+def sample_box(rng: np.random.Generator, box: SyntheticBox, count: int,
+               viewpoint: np.ndarray | None = None) -> np.ndarray:
     """Points on the sides and the top of a box, in world coordinates (only the sides facing `viewpoint`, as a
     LiDAR there would see them)."""
     length, width, height = box.size
@@ -58,11 +59,12 @@ def sample_box(rng: np.random.Generator, box: Box, count: int, viewpoint: np.nda
     return (pose(*box.centre, box.yaw) @ np.column_stack([local, np.ones(count)]).T).T[:, :3]
 
 
-def scene_boxes(rng: np.random.Generator, agents: int) -> tuple[list[Box], list[Box], list[np.ndarray]]:
+def scene_boxes(rng: np.random.Generator,
+                agents: int) -> tuple[list[SyntheticBox], list[SyntheticBox], list[np.ndarray]]:
     """Static structure, moving agents and each agent's rigid motion (4x4, world frame) over one frame."""
-    static = [Box(np.array([x, side * rng.uniform(11.0, 14.0), 0.0]), np.array([rng.uniform(6, 12), 2.0, rng.uniform(4, 9)]), 0.0)
+    static = [SyntheticBox(np.array([x, side * rng.uniform(11.0, 14.0), 0.0]), np.array([rng.uniform(6, 12), 2.0, rng.uniform(4, 9)]), 0.0)
               for x in np.arange(-30.0, 45.0, 14.0) for side in (-1, 1)]
-    static += [Box(np.array([x, side * 8.5, 0.0]), np.array([0.3, 0.3, 5.0]), 0.0) for x in np.arange(-30.0, 45.0, 9.0) for side in (-1, 1)]
+    static += [SyntheticBox(np.array([x, side * 8.5, 0.0]), np.array([0.3, 0.3, 5.0]), 0.0) for x in np.arange(-30.0, 45.0, 9.0) for side in (-1, 1)]
     moving, motions = [], []
     slots = [(x, lane) for lane in (-5.0, -1.75, 1.75, 5.0) for x in np.arange(-30.0, 40.0, 7.0)]
     for slot in rng.choice(len(slots), min(agents, len(slots)), replace=False):
@@ -74,7 +76,7 @@ def scene_boxes(rng: np.random.Generator, agents: int) -> tuple[list[Box], list[
         size = np.array([0.6, 0.6, 1.75]) if pedestrian else np.array([rng.uniform(3.8, 5.0), rng.uniform(1.7, 2.0), rng.uniform(1.4, 1.9)])
         speed = rng.uniform(0.05, 0.2) if pedestrian else rng.uniform(0.3, 1.6)
         turn = rng.normal(0.0, 0.03)
-        box = Box(centre, size, float(yaw))
+        box = SyntheticBox(centre, size, float(yaw))
         step = pose(*centre, yaw) @ pose(speed, 0.0, 0.0, turn) @ np.linalg.inv(pose(*centre, yaw))
         moving.append(box)
         motions.append(step)

@@ -12,7 +12,7 @@ from ssf_common.geometry.sampling import farthest_point_indices
 CHUNK = 1024
 
 
-def knn(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
+def batched_knn(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.Tensor:
     """Indices (B, M, k) of the k nearest reference points (B, N, 3) of each query point (B, M, 3)."""
     k = min(k, reference.shape[1])
     if query.device.type == "cpu":
@@ -39,7 +39,7 @@ def knn_chunked(query: torch.Tensor, reference: torch.Tensor, k: int) -> torch.T
 def ball_group(query: torch.Tensor, reference: torch.Tensor, k: int, radius: float) -> torch.Tensor:
     """Indices (B, M, k) of the k nearest reference points within `radius` of each query point; places without
     a neighbour that close repeat the nearest one (PointNet++'s ball query, nearest first)."""
-    index = knn(query, reference, k)
+    index = batched_knn(query, reference, k)
     distance = (gather(reference, index) - query.unsqueeze(2)).norm(dim=-1)
     return torch.where(distance > radius, index[..., :1], index)
 
@@ -78,8 +78,13 @@ def gather(values: torch.Tensor, index: torch.Tensor) -> torch.Tensor:
 
 def interpolate(source: torch.Tensor, values: torch.Tensor, target: torch.Tensor, k: int = 3) -> torch.Tensor:
     """Inverse-distance kNN interpolation of values (B, N, C) at source points onto target points (B, M, 3)."""
-    index = knn(target, source, k)
+    index = batched_knn(target, source, k)
     distance = (gather(source, index) - target.unsqueeze(2)).norm(dim=-1).clamp_min(1e-6)
     weight = 1.0 / distance
     weight = weight / weight.sum(dim=-1, keepdim=True)
     return (weight.unsqueeze(-1) * gather(values, index)).sum(dim=2)
+
+
+def mean_nearest_distance(moved: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean distance of each moved point (B, N, 3) to its nearest target point (index search without gradient)."""
+    return (gather(target, batched_knn(moved.detach(), target, 1))[:, :, 0] - moved).norm(dim=-1).mean()

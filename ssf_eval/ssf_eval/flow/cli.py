@@ -27,7 +27,7 @@ def register(groups: CommandGroups) -> None:
     evaluate.add_argument("--plot", type=Path, help="PNG: bird's-eye view of the last pair, each estimator's error per point")
     evaluate.add_argument("--threads", type=int, default=1, help="torch CPU threads (1 is fastest on a loaded machine)")
     add_estimator_options(evaluate, with_name=False)
-    evaluate.set_defaults(func=run_eval)
+    evaluate.set_defaults(func=run_eval_flow)
 
     bench = groups.bench.add_parser("flow", help="ms per frame (median, p95) per estimator at 8192 points, peak RSS",
                                     description="Each estimator on the same few simulator pairs (after the warm-up) "
@@ -41,15 +41,15 @@ def register(groups: CommandGroups) -> None:
     bench.add_argument("--threads", type=int, default=1, help="torch CPU threads (1 is fastest on a loaded machine)")
     bench.add_argument("--json", type=Path)
     add_estimator_options(bench, with_name=False)
-    bench.set_defaults(func=run_bench)
+    bench.set_defaults(func=run_bench_flow)
 
 
-def run_eval(args: argparse.Namespace) -> int:
+def run_eval_flow(args: argparse.Namespace) -> int:
     """ssf eval flow."""
     import torch
 
     from ssf_common.paths import check_writable
-    from ssf_eval.flow.evaluate import MaskSource, evaluate, format_table
+    from ssf_eval.flow.evaluate import MaskSource, evaluate_flow, format_flow_table
     from ssf_eval.results import write_result
     from ssf_eval.sources import pairs_from_args
     from ssf_flow_node.options import build_estimators, flow_config
@@ -64,10 +64,10 @@ def run_eval(args: argparse.Namespace) -> int:
     pairs = source.pairs
     print(f"evaluating {len(estimators)} estimators on {len(pairs)} pairs ({source.description}), masks: {args.masks}",
           file=sys.stderr)
-    evaluation = evaluate(estimators, pairs, MaskSource(args.masks), args.seed,
-                          progress=lambda done: print(f"  pair {done}/{len(pairs)}", file=sys.stderr, flush=True))
+    evaluation = evaluate_flow(estimators, pairs, MaskSource(args.masks), args.seed,
+                               progress=lambda done: print(f"  pair {done}/{len(pairs)}", file=sys.stderr, flush=True))
     print(f"scene flow on {len(pairs)} pairs ({source.description}), masks: {args.masks}")
-    print(format_table(evaluation.results))
+    print(format_flow_table(evaluation.results))
     if args.json:
         payload = {"source": source.source, "pairs": len(pairs), "masks": args.masks,
                    "results": [{"estimator": r.name, "ms_median": r.ms_median, "frames": r.frames,
@@ -84,7 +84,7 @@ def run_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_bench(args: argparse.Namespace) -> int:
+def run_bench_flow(args: argparse.Namespace) -> int:
     """ssf bench flow: ms per pair at 8192 points on simulator pairs (or synthetic street pairs)."""
     import resource
     import time

@@ -48,8 +48,8 @@ class FlowEvaluation(NamedTuple):
     last_flows: dict[str, FlowResult]
 
 
-def evaluate(estimators: Sequence[FlowEstimator], pairs: Iterable[ScanPair], source: MaskSource,
-             seed: int = 0, progress=None) -> FlowEvaluation:
+def evaluate_flow(estimators: Sequence[FlowEstimator], pairs: Iterable[ScanPair], source: MaskSource,
+                  seed: int = 0, progress=None) -> FlowEvaluation:
     """Run every estimator on every pair; scores pooled over points, split into all/static/dynamic."""
     rng = np.random.default_rng(seed)
     frames: list[list[FlowScores]] = [[] for _ in estimators]
@@ -71,7 +71,7 @@ def evaluate(estimators: Sequence[FlowEstimator], pairs: Iterable[ScanPair], sou
     return FlowEvaluation(results, last_pair, last_flows)
 
 
-def format_table(results: Sequence[EstimatorScores]) -> str:
+def format_flow_table(results: Sequence[EstimatorScores]) -> str:
     """A text table: EPE3D (m), AS %, AR %, Outliers % for all / static / dynamic points."""
     header = f"{'estimator':<14} {'split':<8} {'EPE3D m':>8} {'AS %':>7} {'AR %':>7} {'Out %':>7} {'points':>9} {'ms':>7}"
     lines = [header, "-" * len(header)]

@@ -64,7 +64,7 @@ def register(groups: CommandGroups) -> None:
     nav.add_argument("-s", "--scenario-param", action="append", default=[], metavar="NAME:=VALUE",
                      help="scenario setting of every trial's world (the names of `ssf sim -p`), e.g. -s "
                      "agents.ego_yield:=0 (agents keep their way: the ego must give way); part of each trial's key")
-    nav.set_defaults(func=run_eval)
+    nav.set_defaults(func=run_eval_nav)
 
 
 def graph_timing(path: Path) -> tuple[float, int]:
@@ -88,7 +88,7 @@ def graph_timing(path: Path) -> tuple[float, int]:
     return round(latency_ms / 1000.0, 3), max(1, round(1.0 / (1.0 - dropped)))
 
 
-def run_eval(args: argparse.Namespace) -> int:
+def run_eval_nav(args: argparse.Namespace) -> int:
     """ssf eval nav."""
     import os
 
@@ -153,7 +153,7 @@ def run_eval(args: argparse.Namespace) -> int:
     else:
         records = run_campaign(specs, TrialLog(log_path), runner)
     cells = summarise(records, planner.reference_speed)
-    print(format_table(cells))
+    print(format_nav_table(cells))
     failures = format_failures(records)
     if failures:
         print(failures)
@@ -200,7 +200,7 @@ def with_videos(specs: list, first: int, folder: Path, suffix: str, trials: int)
     return filmed
 
 
-def format_table(cells) -> str:
+def format_nav_table(cells) -> str:
     """The paper's table: success (with its interval), time and speed (average, and while moving as the paper's), one
     row per cell."""
     lines = ["| perception | agents | success (95 % CI) | time (s) | avg speed (m/s) | moving speed (m/s) | collisions | "

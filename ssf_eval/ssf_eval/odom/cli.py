@@ -69,7 +69,7 @@ def register(groups: CommandGroups) -> None:
                           "of the same drive (scenario, seed, warm-up, masks, perception.* settings): an odometry "
                           "change then reruns a whole route in minutes; start a new DIR after changing perception code")
     add_odom_options(evaluate)
-    evaluate.set_defaults(func=run_eval)
+    evaluate.set_defaults(func=run_eval_odom)
 
     bench = groups.bench.add_parser(
         "odom", help="ms per scan (median, p95) of each odometry method on top of flow and segmentation, peak RSS",
@@ -83,7 +83,7 @@ def register(groups: CommandGroups) -> None:
                        help="also time the refinement with numpy (ours), Open3D and small_gicp on the same scans and maps")
     bench.add_argument("--json", type=Path)
     add_odom_options(bench)
-    bench.set_defaults(func=run_bench)
+    bench.set_defaults(func=run_bench_odom)
 
 
 def add_odom_options(parser: argparse.ArgumentParser) -> None:
@@ -152,7 +152,7 @@ def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: 
     return OdomPerception(OdomMaskSource(masks), estimator, pipeline if segmented else None, seed, maskless, config.dt)
 
 
-def format_table(results: dict) -> str:
+def format_odom_table(results: dict) -> str:
     """The paper's layout: RPE translation and rotation (RMSE / SSE / STD), then ATE, drift, trails and time."""
     header = (f"{'scenario':<12} {'method':<9} {'RPE t RMSE':>10} {'SSE':>8} {'STD':>7} {'RPE r RMSE':>10} {'SSE':>8} "
               f"{'STD':>7} {'ATE':>7} {'drift %':>7} {'deg/100m':>8} {'end %':>6} {'trails %':>8} {'left %':>6} "
@@ -212,7 +212,7 @@ def run_odom(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_eval(args: argparse.Namespace) -> int:
+def run_eval_odom(args: argparse.Namespace) -> int:
     """ssf eval odom."""
     import numpy as np
 
@@ -265,7 +265,7 @@ def run_eval(args: argparse.Namespace) -> int:
     print(f"odometry over {args.frames} scans after {args.warmup:g} s, seed {args.seed}, masks {args.masks} "
           "(RPE between consecutive scans: translation m, rotation deg; ATE m; trails: share of map voxels on agents' "
           "paths; left: of those, where no agent stands at that moment)")
-    print(format_table(results))
+    print(format_odom_table(results))
     print(format_end_errors(results))
     for title, result in results.items():
         floor = result.static_world
@@ -311,7 +311,7 @@ def run_eval(args: argparse.Namespace) -> int:
     return 0
 
 
-def run_bench(args: argparse.Namespace) -> int:
+def run_bench_odom(args: argparse.Namespace) -> int:
     """ssf bench odom: ms per scan of the odometry alone (flow and masks computed beforehand), KISS-ICP beside."""
     import resource
     import time

@@ -55,7 +55,7 @@ class OdomScores(NamedTuple):
     end: EndError
 
 
-def trajectory(poses: np.ndarray, stamps_s: np.ndarray):
+def evo_trajectory(poses: np.ndarray, stamps_s: np.ndarray):
     """An evo PoseTrajectory3D."""
     from evo.core.trajectory import PoseTrajectory3D
 
@@ -75,7 +75,7 @@ def rpe(reference: np.ndarray, estimate: np.ndarray, stamps_s: np.ndarray, rotat
 
     relation = metrics.PoseRelation.rotation_angle_deg if rotation else metrics.PoseRelation.translation_part
     metric = metrics.RPE(relation, delta=1, delta_unit=metrics.Unit.frames, all_pairs=False)
-    metric.process_data((trajectory(reference, stamps_s), trajectory(estimate, stamps_s)))
+    metric.process_data((evo_trajectory(reference, stamps_s), evo_trajectory(estimate, stamps_s)))
     return _stats(metric)
 
 
@@ -83,10 +83,10 @@ def ate(reference: np.ndarray, estimate: np.ndarray, stamps_s: np.ndarray) -> Er
     """Absolute trajectory error (translation, m) after the least-squares SE(3) alignment (evo, Umeyama)."""
     from evo.core import metrics
 
-    aligned = trajectory(estimate, stamps_s)
-    aligned.align(trajectory(reference, stamps_s), correct_scale=False)
+    aligned = evo_trajectory(estimate, stamps_s)
+    aligned.align(evo_trajectory(reference, stamps_s), correct_scale=False)
     metric = metrics.APE(metrics.PoseRelation.translation_part)
-    metric.process_data((trajectory(reference, stamps_s), aligned))
+    metric.process_data((evo_trajectory(reference, stamps_s), aligned))
     return _stats(metric)
 
 

@@ -39,7 +39,7 @@ def run_bench_command(args: argparse.Namespace) -> int:
     from ssf_common.config import build, parse_overrides, read_yaml
     from ssf_common.errors import ConfigError
     from ssf_common.paths import check_writable
-    from ssf_planner_node.core.bench import run_bench
+    from ssf_planner_node.core.bench import run_bench_planner
     from ssf_planner_node.core.config import PlannerConfig
 
     if args.ticks < 1:
@@ -60,7 +60,7 @@ def run_bench_command(args: argparse.Namespace) -> int:
     print("| obstacles | K | tick ms median | p95 | max | CPU ms median | fallbacks | rounds |", flush=True)
     print("| --- | --- | --- | --- | --- | --- | --- | --- |", flush=True)
     for count in counts:
-        row = run_bench(config, count, args.ticks, args.seed)
+        row = run_bench_planner(config, count, args.ticks, args.seed)
         rows.append(row)
         print(f"| {row.obstacles} | {row.max_obstacles} | {row.solve_ms_median:.1f} | {row.solve_ms_p95:.1f} | "
               f"{row.solve_ms_max:.1f} | {row.cpu_ms_median:.1f} | {row.fallbacks} ({100 * row.fallback_rate:.2f} %) | "

@@ -34,7 +34,7 @@ def register(groups: CommandGroups) -> None:
     estimate.add_argument("--out", type=Path, required=True, help="output SEG.npy (N, 6) float32")
     estimate.add_argument("--obstacles", type=Path, help="also write every obstacle, moving and still, as JSON")
     add_perception_options(estimate)
-    estimate.set_defaults(func=run_estimate)
+    estimate.set_defaults(func=run_estimate_seg)
 
     evaluate = groups.eval.add_parser(
         "seg", help="the paper's segmentation table: accuracy, moving IoU, instances, obstacles, per method × input",
@@ -148,7 +148,7 @@ def perception_config(args: argparse.Namespace, scenario=None, **overrides: Any)
     return build(PerceptionConfig, *layers, parse_overrides(args.param, "-p"), flags, source=str(args.config or "-p"))
 
 
-def run_estimate(args: argparse.Namespace) -> int:
+def run_estimate_seg(args: argparse.Namespace) -> int:
     """ssf seg estimate."""
     import numpy as np
 

@@ -16,7 +16,7 @@ from ssf_common.dataset.masks import noisy_mask
 from ssf_common.dataset.pairs import ScanPair, read_pair
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import transform_points, yaw_matrix
-from ssf_common.geometry.torch_ops import gather, knn
+from ssf_common.geometry.torch_ops import gather, batched_knn, mean_nearest_distance
 from ssf_common.interrupts import stop_requests
 from ssf_flow_node.core.asf import checkpoint
 from ssf_flow_node.core.asf.estimator import mask_channels
@@ -61,7 +61,7 @@ class TrainConfig(Section):
     max_minutes: float = Field(0.0, ge=0.0, description="stop (and save) after this long; 0 = no limit")
 
 
-class Batch(NamedTuple):
+class FlowBatch(NamedTuple):
     """Network inputs and targets for one step."""
 
     warped1: torch.Tensor  # (B, N, 3) ego-compensated scan t
@@ -71,7 +71,7 @@ class Batch(NamedTuple):
     dynamic: torch.Tensor  # (B, N) 1.0 on points of moving objects
 
 
-class TrainResult(NamedTuple):
+class FlowTrainResult(NamedTuple):
     """Where training ended."""
 
     step: int
@@ -88,7 +88,7 @@ def training_mask(pair: ScanPair, config: TrainConfig, rng: np.random.Generator)
     return noisy_mask(pair, rng, config.mask_flip, config.mask_drop)
 
 
-def make_sample(pair: ScanPair, ego: np.ndarray, config: TrainConfig, rng: np.random.Generator):
+def make_flow_sample(pair: ScanPair, ego: np.ndarray, config: TrainConfig, rng: np.random.Generator):
     """Resample, rotate (augmentation), ego-compensate with noise, and build the mask channels of one pair."""
     pick1 = rng.choice(pair.pc1.shape[0], config.points, replace=pair.pc1.shape[0] < config.points)
     pick2 = rng.choice(pair.pc2.shape[0], config.points, replace=pair.pc2.shape[0] < config.points)
@@ -117,24 +117,19 @@ def multiscale_epe(pyramid: FlowPyramid, residual: torch.Tensor, dynamic: torch.
     return loss
 
 
-def nearest_distance(moved: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean distance of each moved point to its nearest target point (index search without gradient)."""
-    return (gather(target, knn(moved.detach(), target, 1))[:, :, 0] - moved).norm(dim=-1).mean()
-
-
 def smoothness(points: torch.Tensor, flow: torch.Tensor, k: int) -> torch.Tensor:
     """Mean flow difference to the k nearest neighbours."""
-    neighbours = knn(points, points, k)
+    neighbours = batched_knn(points, points, k)
     return (gather(flow, neighbours) - flow.unsqueeze(2)).norm(dim=-1).mean()
 
 
-def self_supervised_loss(pyramid: FlowPyramid, warped1: torch.Tensor, points2: torch.Tensor,
-                         config: TrainConfig) -> torch.Tensor:
+def flow_self_supervised_loss(pyramid: FlowPyramid, warped1: torch.Tensor, points2: torch.Tensor,
+                              config: TrainConfig) -> torch.Tensor:
     """Chamfer between the moved scan t and scan t+1 (every level moves onto the full scan t+1) plus smoothness."""
     moved = warped1 + pyramid.full
-    loss = config.level_weights[0] * config.chamfer_weight * (nearest_distance(moved, points2) + nearest_distance(points2, moved))
+    loss = config.level_weights[0] * config.chamfer_weight * (mean_nearest_distance(moved, points2) + mean_nearest_distance(points2, moved))
     for points1, flow, weight in zip(pyramid.points1, pyramid.flows, config.level_weights):
-        loss = loss + weight * (config.chamfer_weight * nearest_distance(points1 + flow, points2)
+        loss = loss + weight * (config.chamfer_weight * mean_nearest_distance(points1 + flow, points2)
                                 + config.smooth_weight * smoothness(points1, flow, config.smooth_neighbours))
     return loss
 
@@ -160,7 +155,7 @@ class Trainer:
     def resume(cls, path: Path, files: list[Path], out: Path, device: str = "cpu", steps: int | None = None,
                max_minutes: float | None = None, log: Callable[[str], None] = print) -> "Trainer":
         """Continue a run from its checkpoint, with the config it carries (optionally more steps / time)."""
-        saved = checkpoint.load(path, device)
+        saved = checkpoint.load_asf_checkpoint(path, device)
         if not saved.state:
             raise DataError(f"{path}: holds weights only, no optimizer state to resume from")
         overrides = {key: value for key, value in (("steps", steps), ("max_minutes", max_minutes)) if value is not None}
@@ -181,31 +176,31 @@ class Trainer:
             self.ego_cache[path] = register(pair.pc1, pair.pc2, RegistrationConfig())
         return self.ego_cache[path]
 
-    def batch(self) -> Batch:
+    def batch(self) -> FlowBatch:
         """A random batch of augmented samples."""
         parts = []
         for index in self.rng.integers(len(self.files), size=self.config.batch_size):
             path = self.files[index]
             pair = read_pair(path)
-            parts.append(make_sample(pair, self.ego_of(path, pair), self.config, self.rng))
+            parts.append(make_flow_sample(pair, self.ego_of(path, pair), self.config, self.rng))
         stacked = [torch.from_numpy(np.stack(column).astype(np.float32)).to(self.device) for column in zip(*parts)]
-        return Batch(*stacked)
+        return FlowBatch(*stacked)
 
-    def loss(self, batch: Batch) -> tuple[torch.Tensor, float]:
+    def loss(self, batch: FlowBatch) -> tuple[torch.Tensor, float]:
         """The training loss of a batch and the EPE of its full-resolution flow."""
         pyramid = self.network(batch.warped1, batch.points2, batch.channels1)
         epe = float((pyramid.full.detach() - batch.residual).norm(dim=-1).mean())
         if self.config.mode is TrainMode.SUPERVISED:
             return multiscale_epe(pyramid, batch.residual, batch.dynamic, self.config.level_weights,
                                   self.config.dynamic_weight), epe
-        return self_supervised_loss(pyramid, batch.warped1, batch.points2, self.config), epe
+        return flow_self_supervised_loss(pyramid, batch.warped1, batch.points2, self.config), epe
 
     def save(self) -> None:
         """Write the resumable checkpoint (network config, training config, optimizer state)."""
         state = {"optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(), "step": self.step}
-        checkpoint.save(self.out, self.network, self.config.model_dump(mode="json"), state)
+        checkpoint.save_asf_checkpoint(self.out, self.network, self.config.model_dump(mode="json"), state)
 
-    def run(self) -> TrainResult:
+    def run(self) -> FlowTrainResult:
         """Train until `steps` or `max_minutes`, logging progress and saving checkpoints."""
         torch.set_num_threads(self.config.threads)
         self.network.train()
@@ -236,4 +231,4 @@ class Trainer:
                     break
         self.save()
         self.network.eval()
-        return TrainResult(self.step, losses, self.out)
+        return FlowTrainResult(self.step, losses, self.out)

@@ -69,7 +69,7 @@ class MapConfig(Section):
         return self.max_voxels * (BYTES_PER_VOXEL + BYTES_PER_MOVING)
 
 
-def angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
+def covered_angular_spacing(points: np.ndarray, cell: float = np.radians(2.0)) -> float:
     """Mean angular spacing (rad) of a scan's returns (sensor frame): the square root of the azimuth x elevation area
     they cover (cells of `cell` that hold a return) per return."""
     if len(points) == 0:
@@ -244,7 +244,7 @@ class VoxelMap:
             keep &= self.confirmed | (self.scans - self.first < self.config.confirm_window)
         if self.config.clear_cell > 0 and len(scan) and len(self.codes):
             if self.cell is None:
-                self.cell = self.config.clear_cell * angular_spacing(scan)
+                self.cell = self.config.clear_cell * covered_angular_spacing(scan)
             image = RangeImage.build(scan, self.cell)
             inverse = invert(pose)
             local = self.stored_points @ inverse[:3, :3].T.astype(np.float32) + inverse[:3, 3].astype(np.float32)

@@ -64,7 +64,7 @@ class BenchTraffic:
 MAX_SLOTS = 50  # the most obstacles a problem takes (AvoidanceConfig.max_obstacles' bound)
 
 
-def run_bench(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> BenchRow:
+def run_bench_planner(config: PlannerConfig, count: int, ticks: int, seed: int = 0) -> BenchRow:
     """Drive `ticks` control periods among `count` obstacles, timing every tick (K = max(count, config's K) up to 50
     obstacles, so that every one is in the problem; beyond, the config's K: a flood goes through the planner's own
     selection, the obstacles.max_considered nearest, then the K nearest to the planned motion)."""

@@ -158,7 +158,7 @@ def fit_ego_motion(points: np.ndarray, flow: np.ndarray, previous: np.ndarray | 
     return ego
 
 
-def build(config, device: str = "cpu") -> GeometricSegmenter:
+def build_geometric(config, device: str = "cpu") -> GeometricSegmenter:
     """Factory entry: the geometric segmenter (it reads points and flow together)."""
     if config.input is not SegInput.BOTH:
         raise ConfigError(f"segmenter 'geometric' needs points and flow (input both), not '{config.input.value}'")

@@ -113,14 +113,14 @@ def extract_obstacles(points: np.ndarray, flow: np.ndarray, segmentation: Segmen
     back = invert(ego)
     own = (points + flow) @ back[:3, :3].T + back[:3, 3] - points
     bounds = np.concatenate([[0], np.cumsum(counts)])
-    rows = [describe(points[lo:hi], own[lo:hi] / dt, config) for lo, hi in zip(bounds[:-1], bounds[1:])]
+    rows = [describe_object(points[lo:hi], own[lo:hi] / dt, config) for lo, hi in zip(bounds[:-1], bounds[1:])]
     centres, sizes, yaws, kinds, velocities, covariances = (np.array(column) for column in zip(*rows))
     return Obstacles(stamp_ns, frame_id, ids=instances, kinds=kinds, centres=centres, sizes=sizes, yaws=yaws,
                      velocities=velocities, velocity_covariances=covariances, point_counts=counts,
                      confidences=np.array([segmentation.dynamic_prob[member].mean() for member in members]))
 
 
-def describe(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig):
+def describe_object(points: np.ndarray, velocities: np.ndarray, config: ObstacleConfig):
     """Box (centre, size, yaw), kind, mean velocity and its covariance of one object's points."""
     velocity = velocities.mean(axis=0)
     spread = np.cov(velocities.T) / len(velocities) if len(velocities) > 1 else np.zeros((3, 3))

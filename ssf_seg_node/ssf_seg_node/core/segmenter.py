@@ -17,7 +17,7 @@ from ssf_seg_node.core.selection import StaticSelectionConfig
 
 # name -> "module:function" building it as function(config: SegConfig, device: str) -> Segmenter (imported lazily)
 SEGMENTER_BUILDERS: dict[str, str] = {
-    "geometric": "ssf_seg_node.core.geometric:build",
+    "geometric": "ssf_seg_node.core.geometric:build_geometric",
     "ogc": "ssf_seg_node.core.ogc.segmenter:build_ogc",
     "pointnet": "ssf_seg_node.core.ogc.segmenter:build_pointnet",
     "gmm": "ssf_seg_node.core.baselines:build_gmm",

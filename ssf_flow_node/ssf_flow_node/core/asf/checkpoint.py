@@ -13,7 +13,7 @@ FORMAT = "ssf-asf-1"
 WEIGHTS_DIR = Path(__file__).resolve().parents[2] / "weights"
 
 
-class Checkpoint(NamedTuple):
+class AsfCheckpoint(NamedTuple):
     """A network with its config, and what training needs to resume."""
 
     network: AsfNet
@@ -22,18 +22,19 @@ class Checkpoint(NamedTuple):
     state: dict[str, Any]  # optimizer, scheduler, step (empty for shipped weights)
 
 
-def shipped_weights(strategy: MaskStrategy) -> Path:
+def shipped_asf_weights(strategy: MaskStrategy) -> Path:
     """Path of the weights shipped for a mask strategy."""
     return WEIGHTS_DIR / f"asf_{strategy.value}.pt"
 
 
-def save(path: Path, network: AsfNet, training: dict[str, Any], state: dict[str, Any] | None = None) -> None:
+def save_asf_checkpoint(path: Path, network: AsfNet, training: dict[str, Any],
+                        state: dict[str, Any] | None = None) -> None:
     """Write a checkpoint atomically (temporary file, then rename)."""
     write_payload(path, {"format": FORMAT, "network": network.config.model_dump(mode="json"), "training": training,
                          "weights": network.state_dict(), "state": state or {}})
 
 
-def load(path: Path, device: str = "cpu") -> Checkpoint:
+def load_asf_checkpoint(path: Path, device: str = "cpu") -> AsfCheckpoint:
     """Read a checkpoint; a missing, foreign or incompatible file is one DataError line."""
     payload = read_payload(path, FORMAT, "an ssf asf checkpoint",
                            "train one with `ssf train flow` or pass asf.weights", device)
@@ -44,4 +45,4 @@ def load(path: Path, device: str = "cpu") -> Checkpoint:
     except Exception as err:
         raise unfit(path, err) from None
     network.to(device).eval()
-    return Checkpoint(network, config, dict(payload.get("training") or {}), dict(payload.get("state") or {}))
+    return AsfCheckpoint(network, config, dict(payload.get("training") or {}), dict(payload.get("state") or {}))

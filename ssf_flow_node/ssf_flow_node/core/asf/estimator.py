@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from ssf_common.errors import DataError
-from ssf_flow_node.core.asf.checkpoint import load, shipped_weights
+from ssf_flow_node.core.asf.checkpoint import load_asf_checkpoint, shipped_asf_weights
 from ssf_flow_node.core.asf.network import AsfNet, MaskStrategy
 from ssf_flow_node.core.base import FlowResult, finish, prepare
 from ssf_flow_node.core.preprocess import PreprocessConfig
@@ -44,8 +44,8 @@ class AsfFlowEstimator:
             wanted = MaskStrategy(strategy) if strategy else None
         except ValueError:
             raise DataError(f"unknown mask strategy '{strategy}'; choose explicit, implicit or points") from None
-        path = weights if weights is not None else shipped_weights(wanted or MaskStrategy.EXPLICIT)
-        checkpoint = load(path, device)
+        path = weights if weights is not None else shipped_asf_weights(wanted or MaskStrategy.EXPLICIT)
+        checkpoint = load_asf_checkpoint(path, device)
         if wanted is not None and checkpoint.config.strategy is not wanted:
             raise DataError(f"{path}: trained for the '{checkpoint.config.strategy.value}' strategy, not '{wanted.value}'")
         return cls(checkpoint.network, preprocess, registration, device)

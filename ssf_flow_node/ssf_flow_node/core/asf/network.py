@@ -11,7 +11,7 @@ from pydantic import Field
 from torch import nn
 
 from ssf_common.config import Section
-from ssf_common.geometry.torch_ops import farthest_points, gather, interpolate, knn
+from ssf_common.geometry.torch_ops import farthest_points, gather, interpolate, batched_knn
 
 FLOW_LIMIT = 50.0
 IMPLICIT_SENTINEL = -1.0
@@ -56,7 +56,7 @@ class FlowPyramid(NamedTuple):
     points2: list[torch.Tensor]  # (B, n_l, 3) level points of scan t+1
 
 
-def mlp(sizes: list[int]) -> nn.Sequential:
+def asf_mlp(sizes: list[int]) -> nn.Sequential:
     """Shared 1x1 layers with LeakyReLU(0.1) over the last dimension."""
     layers: list[nn.Module] = []
     for i in range(len(sizes) - 1):
@@ -64,19 +64,19 @@ def mlp(sizes: list[int]) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class SetAbstraction(nn.Module):
+class AsfSetAbstraction(nn.Module):
     """FPS + kNN grouping + shared MLP + max pooling."""
 
     def __init__(self, count: int, k: int, in_width: int, width: int) -> None:
         super().__init__()
         self.count, self.k = count, k
-        self.mlp = mlp([in_width + 3, width // 2, width // 2, width])
+        self.mlp = asf_mlp([in_width + 3, width // 2, width // 2, width])
 
     def forward(self, points: torch.Tensor, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Sampled points, their features and their indices into `points`."""
         index = farthest_points(points, self.count)
         centres = gather(points, index)
-        group = knn(centres, points, self.k)
+        group = batched_knn(centres, points, self.k)
         local = torch.cat([gather(points, group) - centres.unsqueeze(2), gather(features, group)], dim=-1)
         return centres, self.mlp(local).max(dim=2).values, index
 
@@ -87,11 +87,11 @@ class SetUpConv(nn.Module):
     def __init__(self, k: int, in_width: int, width: int) -> None:
         super().__init__()
         self.k = k
-        self.mlp = mlp([in_width + 3, width, width])
+        self.mlp = asf_mlp([in_width + 3, width, width])
 
     def forward(self, fine: torch.Tensor, coarse: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
         """Features (B, n_fine, width) for the fine points."""
-        group = knn(fine, coarse, self.k)
+        group = batched_knn(fine, coarse, self.k)
         local = torch.cat([gather(coarse, group) - fine.unsqueeze(2), gather(features, group)], dim=-1)
         return self.mlp(local).max(dim=2).values
 
@@ -102,15 +102,15 @@ class PointToPatchCost(nn.Module):
     def __init__(self, width: int, out_width: int, k: int, patch_k: int) -> None:
         super().__init__()
         self.k, self.patch_k = k, patch_k
-        self.pair = mlp([2 * width + 3, out_width, out_width])
+        self.pair = asf_mlp([2 * width + 3, out_width, out_width])
         self.attention = nn.Linear(out_width, 1)
-        self.fuse = mlp([2 * out_width, out_width])
+        self.fuse = asf_mlp([2 * out_width, out_width])
         self.patch_weight = nn.Sequential(nn.Linear(3, 16), nn.LeakyReLU(0.1), nn.Linear(16, 1))
 
     def directed(self, points: torch.Tensor, features: torch.Tensor, others: torch.Tensor,
                  other_features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Attention-pooled cost of each point against its patch in the other cloud, and the patch indices."""
-        group = knn(points, others, self.k)
+        group = batched_knn(points, others, self.k)
         offset = gather(others, group) - points.unsqueeze(2)
         pair = self.pair(torch.cat([features.unsqueeze(2).expand(-1, -1, group.shape[2], -1),
                                     gather(other_features, group), offset], dim=-1))
@@ -124,7 +124,7 @@ class PointToPatchCost(nn.Module):
         backward_cost, _ = self.directed(points2, features2, warped1, features1)
         returned = gather(backward_cost, group[:, :, : self.patch_k]).mean(dim=2)
         cost = self.fuse(torch.cat([forward_cost, returned], dim=-1))
-        patch = knn(warped1, warped1, self.patch_k)
+        patch = batched_knn(warped1, warped1, self.patch_k)
         weight = torch.softmax(self.patch_weight(gather(warped1, patch) - warped1.unsqueeze(2)), dim=2)
         return (weight * gather(cost, patch)).sum(dim=2)
 
@@ -134,7 +134,7 @@ class FlowHead(nn.Module):
 
     def __init__(self, in_width: int, width: int) -> None:
         super().__init__()
-        self.mlp = mlp([in_width + 3, width, width])
+        self.mlp = asf_mlp([in_width + 3, width, width])
         self.out = nn.Linear(width, 3)
         nn.init.normal_(self.out.weight, std=1e-3)  # an untrained head (almost) keeps the incoming flow
         nn.init.zeros_(self.out.bias)
@@ -152,10 +152,10 @@ class AsfNet(nn.Module):
         super().__init__()
         self.config = config
         width = config.encoder_width
-        self.encoder = mlp([3 + config.mask_channels, width, width])
+        self.encoder = asf_mlp([3 + config.mask_channels, width, width])
         widths = [width, *config.level_widths]
         self.abstraction = nn.ModuleList(
-            SetAbstraction(n, k, widths[i], widths[i + 1])
+            AsfSetAbstraction(n, k, widths[i], widths[i + 1])
             for i, (n, k) in enumerate(zip(config.points, config.neighbours)))
         self.cost = nn.ModuleList(
             PointToPatchCost(w, c, config.cost_neighbours, config.patch_neighbours) for w, c in zip(config.level_widths, config.cost_width))

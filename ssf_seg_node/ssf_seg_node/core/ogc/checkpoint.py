@@ -27,7 +27,7 @@ class NetworkKind(str, Enum):
         return OgcNet(config) if self is NetworkKind.OGC else PointNetClassifier(config)
 
 
-class Checkpoint(NamedTuple):
+class SegCheckpoint(NamedTuple):
     """A network with its config, and what training needs to resume."""
 
     kind: NetworkKind
@@ -37,19 +37,19 @@ class Checkpoint(NamedTuple):
     state: dict[str, Any]  # optimizer, scheduler, step, validation history (empty for shipped weights)
 
 
-def shipped_weights(kind: NetworkKind, kind_input: SegInput) -> Path:
+def shipped_seg_weights(kind: NetworkKind, kind_input: SegInput) -> Path:
     """Path of the weights shipped for a network kind and input, e.g. weights/ogc_both.pt."""
     return WEIGHTS_DIR / f"{kind.value}_{SegInput(kind_input).value}.pt"
 
 
-def save(path: Path, kind: NetworkKind, network: torch.nn.Module, training: dict[str, Any],
-         state: dict[str, Any] | None = None) -> None:
+def save_seg_checkpoint(path: Path, kind: NetworkKind, network: torch.nn.Module, training: dict[str, Any],
+                        state: dict[str, Any] | None = None) -> None:
     """Write a checkpoint atomically (temporary file, then rename)."""
     write_payload(path, {"format": FORMAT, "kind": kind.value, "network": network.config.model_dump(mode="json"),
                          "training": training, "weights": network.state_dict(), "state": state or {}})
 
 
-def load(path: Path, device: str = "cpu") -> Checkpoint:
+def load_seg_checkpoint(path: Path, device: str = "cpu") -> SegCheckpoint:
     """Read a checkpoint; a missing, foreign or incompatible file is one DataError line."""
     payload = read_payload(path, FORMAT, "an ssf segmentation network checkpoint",
                            "train one with `ssf train seg` or pass the weights option", device)
@@ -61,4 +61,4 @@ def load(path: Path, device: str = "cpu") -> Checkpoint:
     except Exception as err:
         raise unfit(path, err) from None
     network.to(device).eval()
-    return Checkpoint(kind, network, config, dict(payload.get("training") or {}), dict(payload.get("state") or {}))
+    return SegCheckpoint(kind, network, config, dict(payload.get("training") or {}), dict(payload.get("state") or {}))

@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import torch
 
-from ssf_common.geometry.torch_ops import ball_group, gather, knn
+from ssf_common.geometry.torch_ops import ball_group, gather, mean_nearest_distance
 
 MIN_WEIGHT = 1e-6
 
@@ -23,7 +23,7 @@ class SlotMotions(NamedTuple):
         return torch.einsum("bkij,bnj->bkni", self.rotation, points) + self.translation.unsqueeze(2)
 
 
-def weighted_kabsch(source: torch.Tensor, target: torch.Tensor, weights: torch.Tensor) -> SlotMotions:
+def slot_kabsch(source: torch.Tensor, target: torch.Tensor, weights: torch.Tensor) -> SlotMotions:
     """Per slot k the rigid T_k minimising sum_i w_ik |T_k s_i - t_i|^2 (weights (B, N, K)), differentiable.
 
     Weighted centroids, S = (P - mu_s)^T diag(w) (Q - mu_t), SVD, reflection fix R = V diag(1, 1, det(V U^T)) U^T,
@@ -52,7 +52,7 @@ def weighted_kabsch(source: torch.Tensor, target: torch.Tensor, weights: torch.T
 def slot_motions(points: torch.Tensor, flow: torch.Tensor, masks: torch.Tensor) -> SlotMotions:
     """The rigid motion of each slot from P_t to P_t + S_t, as OGC uses it: fitted without gradient."""
     with torch.no_grad():
-        return weighted_kabsch(points, points + flow, masks)
+        return slot_kabsch(points, points + flow, masks)
 
 
 def rigid_mixture(points: torch.Tensor, masks: torch.Tensor, motions: SlotMotions) -> torch.Tensor:
@@ -81,17 +81,12 @@ def consistency_loss(flow: torch.Tensor, masks: torch.Tensor) -> torch.Tensor:
     return within.sum(dim=1).mean() / masks.shape[1]
 
 
-def nearest_distance(moved: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean distance of each moved point (B, N, 3) to its nearest target point (KD-tree index, no N x M matrix)."""
-    return (gather(target, knn(moved.detach(), target, 1))[:, :, 0] - moved).norm(dim=-1).mean()
-
-
 def chamfer_loss(moved: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     """L_CD: bidirectional nearest-neighbour distance between the predicted P_t + S_t and P_t+1.
 
     With a fixed input flow this is a constant; it steers the masks when P_t + S_t is the slots' rigid mixture
     (the flow refined by the segmentation, as in OGC's object-aware refinement)."""
-    return nearest_distance(moved, target) + nearest_distance(target, moved)
+    return mean_nearest_distance(moved, target) + mean_nearest_distance(target, moved)
 
 
 def neighbourhood(points: torch.Tensor, k: int, radius: float, centres: torch.Tensor | None = None) -> torch.Tensor:

@@ -75,7 +75,7 @@ class GroupNorm(nn.Module):
         return torch.addcmul(shift.reshape(shape), x, scale.reshape(shape))
 
 
-def mlp(sizes: list[int], groups: int) -> nn.Sequential:
+def ogc_mlp(sizes: list[int], groups: int) -> nn.Sequential:
     """Shared per-point layers: Linear, GroupNorm, ReLU."""
     layers: list[nn.Module] = []
     for i in range(len(sizes) - 1):
@@ -83,7 +83,7 @@ def mlp(sizes: list[int], groups: int) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-class SetAbstraction(nn.Module):
+class OgcSetAbstraction(nn.Module):
     """FPS to N / ratio centres, ball grouping, shared MLP over (offset / radius, features), max pooling.
 
     The first layer is split into its feature part, applied once per point before grouping, and its offset part."""
@@ -94,7 +94,7 @@ class SetAbstraction(nn.Module):
         self.first_features = nn.Linear(in_width, width // 2)
         self.first_offsets = nn.Linear(3, width // 2, bias=False)
         self.first_norm = GroupNorm(groups, width // 2)
-        self.mlp = mlp([width // 2, width // 2, width], groups)
+        self.mlp = ogc_mlp([width // 2, width // 2, width], groups)
 
     def forward(self, points: torch.Tensor, features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Centres (B, M, 3) and their features (B, M, width)."""
@@ -110,7 +110,7 @@ class FeaturePropagation(nn.Module):
 
     def __init__(self, coarse_width: int, fine_width: int, width: int, groups: int) -> None:
         super().__init__()
-        self.mlp = mlp([coarse_width + fine_width, width, width], groups)
+        self.mlp = ogc_mlp([coarse_width + fine_width, width, width], groups)
 
     def forward(self, fine: torch.Tensor, coarse: torch.Tensor, fine_features: torch.Tensor,
                 coarse_features: torch.Tensor) -> torch.Tensor:
@@ -126,10 +126,10 @@ class PointEncoder(nn.Module):
         super().__init__()
         self.config = config
         g = config.groups
-        self.input_mlp = mlp([config.input_channels, config.input_width], g)
+        self.input_mlp = ogc_mlp([config.input_channels, config.input_width], g)
         widths = [config.input_width, *config.widths]
         self.abstraction = nn.ModuleList(
-            SetAbstraction(ratio, k, radius, widths[i], widths[i + 1], g)
+            OgcSetAbstraction(ratio, k, radius, widths[i], widths[i + 1], g)
             for i, (ratio, k, radius) in enumerate(zip(config.ratios, config.neighbours, config.radii)))
         self.propagation = nn.ModuleList([
             FeaturePropagation(widths[1], config.input_width, config.embedding, g),

@@ -14,7 +14,7 @@ from ssf_common.geometry.neighbours import propagate
 from ssf_seg_node.core.base import SegInput, SegmentationResult, result_from_slots
 from ssf_seg_node.core.features import MotionInput, motion_input, selection_for
 from ssf_seg_node.core.geometric import GeometricConfig
-from ssf_seg_node.core.ogc.checkpoint import NetworkKind, load, shipped_weights
+from ssf_seg_node.core.ogc.checkpoint import NetworkKind, load_seg_checkpoint, shipped_seg_weights
 from ssf_seg_node.core.ogc.config import NetworkRunConfig
 from ssf_seg_node.core.ogc.network import OgcNet, PointNetClassifier
 from ssf_seg_node.core.selection import StaticSelectionConfig, static_slots_of
@@ -106,8 +106,8 @@ class PointNetSegmenter:
 def load_runner(kind: NetworkKind, run: NetworkRunConfig, wanted: SegInput, ego_fit: GeometricConfig,
                 device: str) -> NetworkRunner:
     """The network of a checkpoint (default: the shipped weights for the input), checked against what is asked."""
-    path = Path(run.weights) if run.weights else shipped_weights(kind, wanted)
-    checkpoint = load(path, device)
+    path = Path(run.weights) if run.weights else shipped_seg_weights(kind, wanted)
+    checkpoint = load_seg_checkpoint(path, device)
     if checkpoint.kind is not kind:
         raise DataError(f"{path}: holds a '{checkpoint.kind.value}' network, not '{kind.value}'")
     if checkpoint.config.input is not wanted:

@@ -87,7 +87,7 @@ class SegTrainConfig(Section):
     max_minutes: float = Field(0.0, ge=0.0, description="stop (and save) after this long; 0 = no limit")
 
 
-class Sample(NamedTuple):
+class SegSample(NamedTuple):
     """One augmented training sample (float32 arrays)."""
 
     points: np.ndarray  # (n, 3) scan t
@@ -97,7 +97,7 @@ class Sample(NamedTuple):
     dynamic: np.ndarray  # (n,) 1.0 on moving points (the supervised baseline's target only)
 
 
-class Batch(NamedTuple):
+class SegBatch(NamedTuple):
     """Samples stacked into tensors (B, n, ...)."""
 
     points: torch.Tensor
@@ -114,7 +114,7 @@ class Scores(NamedTuple):
     moving_iou: float
 
 
-class TrainResult(NamedTuple):
+class SegTrainResult(NamedTuple):
     """Where training ended."""
 
     step: int
@@ -155,7 +155,7 @@ def augmentation(config: AugmentConfig, rng: np.random.Generator) -> np.ndarray:
     return transform
 
 
-def make_sample(item: TrainingPair, config: SegTrainConfig, rng: np.random.Generator) -> Sample:
+def make_seg_sample(item: TrainingPair, config: SegTrainConfig, rng: np.random.Generator) -> SegSample:
     """Resample both scans to `points`, transform them alike, and derive the network's flow input."""
     pair = item.pair
     pick1 = sample_indices(pair.pc1, config.points, rng, pad=True)
@@ -165,7 +165,7 @@ def make_sample(item: TrainingPair, config: SegTrainConfig, rng: np.random.Gener
     flow = transform_points(change, pair.pc1[pick1] + item.flow[pick1]) - points
     ego = change @ item.ego @ np.linalg.inv(change)  # still rigid: the similarity's scale cancels in the rotation
     motion = flow - rigid_flow(ego, points) if config.compensate_ego else flow
-    return Sample(points, flow, motion, transform_points(change, pair.pc2[pick2]), pair.dynamic1[pick1].astype(np.float32))
+    return SegSample(points, flow, motion, transform_points(change, pair.pc2[pick2]), pair.dynamic1[pick1].astype(np.float32))
 
 
 class SegTrainer:
@@ -194,7 +194,7 @@ class SegTrainer:
                steps: int | None = None, max_minutes: float | None = None,
                log: Callable[[str], None] = print) -> "SegTrainer":
         """Continue a run from its checkpoint, with the config it carries (optionally more steps / time)."""
-        saved = checkpoint.load(path, device)
+        saved = checkpoint.load_seg_checkpoint(path, device)
         if not saved.state:
             raise DataError(f"{path}: holds weights only, no optimizer state to resume from")
         overrides = {key: value for key, value in (("steps", steps), ("max_minutes", max_minutes)) if value is not None}
@@ -214,19 +214,19 @@ class SegTrainer:
             self.cache[path] = load_training_pair(path, self.config.flow, self.ego_fit)
         return self.cache[path]
 
-    def batch(self) -> Batch:
+    def batch(self) -> SegBatch:
         """A random batch of augmented samples."""
-        samples = [make_sample(self.training_pair(self.files[index]), self.config, self.rng)
+        samples = [make_seg_sample(self.training_pair(self.files[index]), self.config, self.rng)
                    for index in self.rng.integers(len(self.files), size=self.config.batch_size)]
-        return Batch(*(torch.from_numpy(np.stack(column).astype(np.float32)).to(self.device) for column in zip(*samples)))
+        return SegBatch(*(torch.from_numpy(np.stack(column).astype(np.float32)).to(self.device) for column in zip(*samples)))
 
-    def loss(self, batch: Batch) -> torch.Tensor:
+    def loss(self, batch: SegBatch) -> torch.Tensor:
         """The training loss of a batch: the self-supervised sum for ogc, weighted cross-entropy for pointnet."""
         if self.config.method is NetworkKind.POINTNET:
             logits = self.network(batch.points, batch.motion)
             weight = 1.0 + (self.config.dynamic_weight - 1.0) * batch.dynamic
             return F.binary_cross_entropy_with_logits(logits, batch.dynamic, weight=weight)
-        return self_supervised_loss(self.network(batch.points, batch.motion), batch, self.config.losses)
+        return seg_self_supervised_loss(self.network(batch.points, batch.motion), batch, self.config.losses)
 
     def segmenter(self) -> OgcSegmenter | PointNetSegmenter:
         """The current network as the segmenter inference uses."""
@@ -253,9 +253,10 @@ class SegTrainer:
         """Write the resumable checkpoint (network config, training config, optimizer state, validation history)."""
         state = {"optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(), "step": self.step,
                  "validation": [list(row) for row in self.history]}
-        checkpoint.save(self.out, self.config.method, self.network, self.config.model_dump(mode="json"), state)
+        checkpoint.save_seg_checkpoint(self.out, self.config.method, self.network, self.config.model_dump(mode="json"),
+                                       state)
 
-    def run(self) -> TrainResult:
+    def run(self) -> SegTrainResult:
         """Train until `steps` or `max_minutes`, logging progress, validating and saving checkpoints."""
         torch.set_num_threads(self.config.threads)
         self.network.train()
@@ -290,7 +291,7 @@ class SegTrainer:
                     break
         self.save()
         self.network.eval()
-        return TrainResult(self.step, losses, list(self.history), self.out)
+        return SegTrainResult(self.step, losses, list(self.history), self.out)
 
     def log_validation(self) -> None:
         """Validate, keep the scores in the history and log them."""
@@ -301,7 +302,7 @@ class SegTrainer:
                      f"{scores.moving_iou:.3f} ({len(self.validation_files)} pairs)")
 
 
-def self_supervised_loss(masks: torch.Tensor, batch: Batch, weights: LossWeights) -> torch.Tensor:
+def seg_self_supervised_loss(masks: torch.Tensor, batch: SegBatch, weights: LossWeights) -> torch.Tensor:
     """L_mot + L_SC + L_CD + smoothness, weighted; no labels involved."""
     motions = slot_motions(batch.points, batch.flow, masks)
     loss = weights.motion * motion_loss(batch.points, batch.flow, masks, motions)
