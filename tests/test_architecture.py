@@ -38,12 +38,10 @@ def top(name: str) -> str:
 
 
 ALL_PACKAGES = ("ssf_common", "ssf_bringup", "ssf_eval") + NODE_PACKAGES
-# Public names still defined in two places, each waiting for its change: the flow's rigid `Plan` (points seen from
-# above, in core/rigid/pair.py) beside the planner's record, and the command-line conventions. The list only
-# shrinks: a name that became unique must leave it.
+# Public names defined in more than one place on purpose: the command-line conventions. The list only shrinks: a name
+# that became unique must leave it.
 KNOWN_TWINS = {
     "main", "register", "add_parser",  # the entry-point conventions: each console script, each package's commands
-    "Plan",
 }
 
 

@@ -18,7 +18,7 @@ from ssf_flow_node.core.rigid.config import RigidConfig
 from ssf_flow_node.core.rigid.ego import pair_ego_motion
 from ssf_flow_node.core.rigid.ends import Bands, band_points
 from ssf_flow_node.core.rigid.motions import apply_motions, attach_to_moving, split_motions
-from ssf_flow_node.core.rigid.pair import PAIR_HISTORY, PairState, Plan, shows_ground, with_ground
+from ssf_flow_node.core.rigid.pair import PAIR_HISTORY, PairState, TopView, shows_ground, with_ground
 
 
 class RigidFlowEstimator:
@@ -112,7 +112,7 @@ class RigidFlowEstimator:
         ground1, low, bands = None, None, None
         if self.preprocess.remove_ground:  # whole scans: points on the ground take an object's motion only under it
             ground1 = pair.height1 < self.config.ground_clearance
-            low = Plan(pair.pc1, np.flatnonzero(ground1))
+            low = TopView(pair.pc1, np.flatnonzero(ground1))
             if self.config.end_whole:
                 bands = Bands(band_points(pair.pc1, pair.height1, self.preprocess),
                               band_points(pair.pc2, pair.height2, self.preprocess))

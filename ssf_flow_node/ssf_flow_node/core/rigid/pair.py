@@ -33,7 +33,7 @@ class PairState:
     surfaces: Surfaces  # scan t+1 above the ground
     all_surfaces: Surfaces  # all of scan t+1
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
-    low: Plan | None  # those points seen from above
+    low: TopView | None  # those points seen from above
     bands: Bands | None  # the whole scans' non-ground points below object_height (scan t as sensed)
     prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
     base_ego: np.ndarray | None = None  # the ego motion aligned on every point
@@ -48,7 +48,7 @@ class PairState:
     proven: np.ndarray | None = None  # per sampled point, its cluster's ClusterMotions.proven in the last estimate
 
 
-class Plan:
+class TopView:
     """Points of a scan seen from above: which of them lie within a horizontal distance of other points."""
 
     def __init__(self, points: np.ndarray, index: np.ndarray) -> None:
