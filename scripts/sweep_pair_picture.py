@@ -21,6 +21,7 @@ import numpy as np  # noqa: E402
 
 from ssf_common.dataset.pairs import read_pair  # noqa: E402
 from ssf_common.geometry.sweep import deskew  # noqa: E402
+from ssf_common.render.figures import save_figure  # noqa: E402
 from ssf_common.scans import read_scan_with_time  # noqa: E402
 
 
@@ -64,7 +65,7 @@ def main(export: Path, pair_index: int, out: Path) -> None:
     near.set_title("structure above 0.5 m within 25 m")
     near.legend(loc="lower left", markerscale=10, fontsize=8)
     figure.tight_layout()
-    figure.savefig(out, dpi=110)
+    save_figure(figure, out, dpi=110)
 
 
 if __name__ == "__main__":

@@ -10,7 +10,7 @@ from sim_bridge.footprints import Rectangles
 from sim_bridge.simulator import Simulator
 from sim_bridge.agents import AgentKind
 from sim_bridge.world import PointClass, World
-from ssf_common.errors import DataError
+from ssf_common.render.figures import save_figure
 
 STRUCTURE_COLOURS = {PointClass.BUILDING: "#9a9a9a", PointClass.PARKED_CAR: "#5f7f9f"}
 
@@ -97,11 +97,4 @@ def render_episode(sim: Simulator, path: str | Path, title: str = "") -> Path:
         f"{status.average_speed:.2f} m/s, min clearance {status.min_clearance:.2f} m"
     )
     ax.legend(loc="upper left", fontsize=8)
-    path = Path(path)
-    try:
-        fig.savefig(path, bbox_inches="tight")
-    except OSError as err:
-        raise DataError(f"{path}: cannot write the picture ({err.strerror})") from None
-    finally:
-        plt.close(fig)
-    return path
+    return save_figure(fig, path, bbox_inches="tight")

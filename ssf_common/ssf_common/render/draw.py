@@ -11,6 +11,7 @@ import numpy as np
 from ssf_common.records import MotionLabel, ObstacleKind, Obstacles
 from ssf_common.render.counts import FrameCounts, moving, summary_line
 from ssf_common.render.frames import NS, EpisodeTrack, FusionLog, RenderConfig, ViewFrame
+from ssf_common.render.figures import save_figure
 
 STATIC_COLOUR = "#9aa0a6"
 RAW_COLOUR = "#7f9fbf"
@@ -246,14 +247,7 @@ def draw_episode_picture(path: Any, last: ViewFrame, overview: np.ndarray, track
     _draw_fusion(fig.add_subplot(grid[0, 2]), track.fusion)
     _draw_counts(fig.add_subplot(grid[1, :]), counts, start, config)
     fig.suptitle(title or episode_name(track), fontsize=12)
-    try:
-        fig.savefig(path, bbox_inches="tight")
-    except OSError as err:
-        from ssf_common.errors import DataError
-
-        raise DataError(f"{path}: cannot write the picture ({err.strerror})") from None
-    finally:
-        plt.close(fig)
+    save_figure(fig, path, bbox_inches="tight")
 
 
 def episode_name(track: EpisodeTrack) -> str:

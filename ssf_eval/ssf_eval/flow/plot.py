@@ -8,8 +8,8 @@ from typing import Mapping
 import numpy as np
 
 from ssf_common.dataset.pairs import ScanPair
-from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import rigid_flow
+from ssf_common.render.figures import save_figure
 from ssf_flow_node.core.base import FlowResult
 
 ERROR_SCALE_M = 0.3  # colour saturates here (the outlier threshold)
@@ -47,12 +47,4 @@ def plot_pair(pair: ScanPair, results: Mapping[str, FlowResult], path: str | Pat
     axes[0, 0].set_ylabel("y (m)")
     if title:
         figure.suptitle(title)
-    path = Path(path)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        figure.savefig(path, dpi=110)
-    except OSError as err:
-        raise DataError(f"{path}: cannot write the picture ({err.strerror})") from None
-    finally:
-        plt.close(figure)
-    return path
+    return save_figure(figure, path, dpi=110)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ssf_common.render.figures import save_figure
 from ssf_eval.nav.stats import CellSummary
 
 COLOURS = {"gt": "tab:green", "ssf": "tab:orange", "ssf + ssf pose": "tab:red", "dbscan": "tab:blue", "dbscan0": "tab:cyan",
@@ -42,6 +43,5 @@ def plot_cells(cells: list[CellSummary], path: Path, title: str) -> str:
     axes[0].legend(loc="lower left")
     figure.suptitle(f"closed-loop navigation: {title}")
     figure.tight_layout()
-    figure.savefig(path, dpi=110)
-    plt.close(figure)
+    save_figure(figure, path, dpi=110)
     return f"figure -> {path}"

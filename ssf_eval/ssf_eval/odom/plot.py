@@ -7,19 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import invert
+from ssf_common.render.figures import save_figure
 
 COLOURS = {"truth": "black", "points": "tab:orange", "flow": "tab:blue", "ssf": "tab:green", "kiss-icp": "tab:red",
            "ssf+twist": "tab:purple"}
-
-
-def _save(figure, path: Path) -> Path:
-    try:
-        figure.savefig(path, dpi=110, bbox_inches="tight")
-    except OSError as err:
-        raise DataError(f"{path}: cannot write the picture ({err.strerror})") from None
-    return path
 
 
 def plot_trajectories(results: dict, path: Path) -> Path:
@@ -45,8 +37,7 @@ def plot_trajectories(results: dict, path: Path) -> Path:
         axis.set_ylabel("y (m)")
         axis.legend(fontsize=7)
     figure.suptitle("trajectories in the first scan's frame")
-    path = _save(figure, path)
-    plt.close(figure)
+    path = save_figure(figure, path, dpi=110, bbox_inches="tight")
     return path
 
 
@@ -69,6 +60,5 @@ def plot_maps(result, title: str, path: Path, names: tuple[str, ...] = ("points"
         axis.set_aspect("equal", adjustable="datalim")
         axis.set_xlabel("x (m)")
     figure.suptitle(f"{title}: local maps (above ground) at the last sample; red = on agents' paths")
-    path = _save(figure, path)
-    plt.close(figure)
+    path = save_figure(figure, path, dpi=110, bbox_inches="tight")
     return path

@@ -13,6 +13,7 @@ import numpy as np
 
 from ssf_common.config import Section
 from ssf_common.errors import DataError
+from ssf_common.render.figures import save_figure
 from ssf_eval.pipeline import PerceptionConfig
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, OdomStep, Odometry
 
@@ -225,10 +226,4 @@ def plot_path(poses: np.ndarray, title: str, path: Path, truth: np.ndarray | Non
     off = "" if truth is None else f", ends {np.linalg.norm(xy[-1] - truth[-1, :2, 3]):.2f} m from the true end"
     axis.set_title(f"{title}\n{len(poses)} poses, {distance:.1f} m{off}", fontsize=8)
     axis.legend(fontsize=7, loc="best")
-    try:
-        figure.savefig(path, dpi=110, bbox_inches="tight")
-    except OSError as err:
-        raise DataError(f"{path}: cannot write the picture ({err.strerror})") from None
-    finally:
-        plt.close(figure)
-    return path
+    return save_figure(figure, path, dpi=110, bbox_inches="tight")

@@ -9,6 +9,7 @@ from typing import Callable, Collection, Iterable, NamedTuple, Sequence
 import numpy as np
 
 from ssf_common.dataset.pairs import ScanPair
+from ssf_common.render.figures import save_figure
 from ssf_eval.flow.metrics import score_flow
 from ssf_eval.pipeline import PerceptionConfig, PerceptionChain
 from ssf_eval.seg.metrics import ObstacleErrors, SegCounts, SegScores, obstacle_errors, pool, seg_counts, seg_scores
@@ -163,8 +164,7 @@ def plot_iterations(rows: Sequence[IterationScores], path, title: str = "") -> o
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from ssf_common.errors import DataError
-
+    
     n = [r.iteration for r in rows]
     figure, axes = plt.subplots(1, 3, figsize=(13, 3.8), constrained_layout=True)
     axes[0].plot(n, [r.epe_dynamic for r in rows], "o-", color="#d62728", label="dynamic points")
@@ -180,10 +180,4 @@ def plot_iterations(rows: Sequence[IterationScores], path, title: str = "") -> o
         axis.grid(alpha=0.3)
     if title:
         figure.suptitle(title)
-    try:
-        figure.savefig(path, dpi=110)
-    except OSError as err:
-        raise DataError(f"{path}: cannot write the picture ({err.strerror})") from None
-    finally:
-        plt.close(figure)
-    return path
+    return save_figure(figure, path, dpi=110)
