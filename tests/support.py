@@ -93,3 +93,20 @@ def swept_pair(seed: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarr
                        np.c_[np.full(1500, 25.0), rng.uniform(-8, 8, 1500), rng.uniform(-1.7, 3, 1500)],
                        np.c_[rng.uniform(-30, 30, 1500), np.full(1500, -9.0), rng.uniform(-1.7, 3, 1500)]])
     return swept(world, 0.0), swept(world, SWEEP_SPEED * SWEEP_PERIOD)
+
+
+class FakeTime:
+    """A clock and a stop event in one: waiting advances the clock instead of sleeping."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+    def wait(self, seconds: float) -> bool:
+        self.now += seconds
+        return False
+
+    def is_set(self) -> bool:
+        return False

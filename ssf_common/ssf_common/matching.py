@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import collections
 from collections.abc import Callable, Hashable
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 Main = TypeVar("Main")
 Companion = TypeVar("Companion")
@@ -61,3 +61,17 @@ class ExactMatcher(Generic[Main, Companion]):
     def _alone(self, item: Main) -> None:
         self.alone += 1
         self.on_match(item, None)
+
+
+def ego_motion_listener(node: Any, matcher: ExactMatcher[Any, Any]) -> Callable[[Any], None]:
+    """The /ssf/ego_motion callback of a node that pairs clouds with their ego motion: each one decoded (a bad one
+    dropped in one line by the node) and offered to `matcher` under its stamp and iteration."""
+    from ssf_common import topics
+    from ssf_common.conversions import ego_motion_from_msg
+
+    def on_ego_motion(msg: Any) -> None:
+        ego = node.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is not None:
+            matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
+
+    return on_ego_motion

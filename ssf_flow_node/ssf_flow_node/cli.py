@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.command_groups import CommandGroups
+from ssf_common.command_groups import CommandGroups, add_training_run_options
 from ssf_flow_node.options import add_estimator_options, flow_config
 
 def register(groups: CommandGroups) -> None:
@@ -35,14 +35,7 @@ def register(groups: CommandGroups) -> None:
     train.add_argument("--resume", type=Path, help="continue from this checkpoint with its config")
     train.add_argument("--mode", choices=("supervised", "self_supervised"))
     train.add_argument("--strategy", choices=("explicit", "implicit", "points"), help="how the mask is fed")
-    train.add_argument("--steps", type=int)
-    train.add_argument("--batch-size", type=int)
-    train.add_argument("--minutes", type=float, help="stop and save after this many minutes")
-    train.add_argument("--threads", type=int, help="torch CPU threads")
-    train.add_argument("--device", default="cpu", help="cpu or cuda")
-    train.add_argument("--config", type=Path, help="training config YAML (dotted names as in the checkpoint)")
-    train.add_argument("-p", "--param", "--set", dest="param", action="append", default=[], metavar="NAME:=VALUE",
-                       help="override one training config value, e.g. -p lr:=5e-4")
+    add_training_run_options(train, "lr:=5e-4")
     train.set_defaults(func=run_train_flow)
 
 

@@ -16,10 +16,10 @@ from pydantic import Field
 from ssf_common import messages, pose_msgs, topics
 from ssf_common.config import Section
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
-from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, odometry_to_msg, odometry_transform_msg,
+from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg,
                                     scene_flow_from_cloud, semantic_flow_from_cloud)
 from ssf_common.errors import ConfigError, SsfError
-from ssf_common.matching import ExactMatcher
+from ssf_common.matching import ExactMatcher, ego_motion_listener
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.pointcloud import xyz_to_cloud
 from ssf_common.records import EgoMotion
@@ -105,7 +105,8 @@ class OdomNode(Node):
         if self.wiring.twist_topic:
             self.create_subscription("geometry_msgs/msg/TwistStamped", self.wiring.twist_topic, self.on_twist,
                                      QOS_DEFAULT)
-        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion, QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION,
+                                 ego_motion_listener(self, self.matcher), QOS_DEFAULT)
         if self.wiring.input == "semantic_flow":  # inputs last: the node is whole once they are matched
             self.create_subscription("sensor_msgs/msg/PointCloud2", topics.SEMANTIC_FLOW, self.on_semantic_flow, QOS_DEFAULT)
         else:
@@ -146,13 +147,6 @@ class OdomNode(Node):
         self.matcher.add_main((flow.stamp_ns, flow.iteration), OdomInput(flow.stamp_ns, flow.points, flow.flow,
                                                                          mask.dynamic_prob, time=flow.time),
                               time.monotonic())
-
-    def on_ego_motion(self, msg: Any) -> None:
-        """Match the flow estimator's ego motion with the scan it belongs to."""
-        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
-        if ego is None:
-            return
-        self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 
     def _matched(self, frame: OdomInput, ego: EgoMotion | None) -> None:
         """Queue one scan with its ego motion (without one, the odometry fits it from the static flow: counted)."""

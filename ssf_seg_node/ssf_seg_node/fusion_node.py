@@ -15,11 +15,11 @@ from pydantic import Field
 
 from ssf_common import messages, topics
 from ssf_common.config import Section
-from ssf_common.conversions import (ego_motion_from_msg, mask_from_cloud, mask_to_cloud, obstacles_to_msg,
+from ssf_common.conversions import (mask_from_cloud, mask_to_cloud, obstacles_to_msg,
                                     prior_to_cloud, scene_flow_from_cloud, semantic_flow_to_cloud)
 from ssf_common.diagnostics import StageStats, advertise
 from ssf_common.markers import MarkerSet
-from ssf_common.matching import ExactMatcher
+from ssf_common.matching import ExactMatcher, ego_motion_listener
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.records import EgoMotion, SceneFlow
 from ssf_common.stamps import StampSequence
@@ -59,7 +59,8 @@ class FusionNode(Node):
             "visualization_msgs/msg/MarkerArray", topics.SSF_MARKERS, QOS_DEFAULT)
         self.create_timer(0.05, self.on_timer)
         self.create_timer(report_period, self._report)
-        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion, QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION,
+                                 ego_motion_listener(self, self.matcher), QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK, self.on_mask, QOS_DEFAULT)
 
@@ -73,13 +74,6 @@ class FusionNode(Node):
             self.loop.restart()
             self.matcher.clear()
         self.matcher.add_main((flow.stamp_ns, flow.iteration), flow, time.monotonic())
-
-    def on_ego_motion(self, msg: Any) -> None:
-        """Match an ego motion with its flow."""
-        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
-        if ego is None:
-            return
-        self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 
     def _matched(self, flow: SceneFlow, ego: EgoMotion | None) -> None:
         """Remember S^(i) with its ego motion."""

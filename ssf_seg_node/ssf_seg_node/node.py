@@ -12,9 +12,9 @@ from typing import Any
 import numpy as np
 
 from ssf_common import topics
-from ssf_common.conversions import ego_motion_from_msg, mask_to_cloud, scene_flow_from_cloud
+from ssf_common.conversions import mask_to_cloud, scene_flow_from_cloud
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
-from ssf_common.matching import ExactMatcher
+from ssf_common.matching import ExactMatcher, ego_motion_listener
 from ssf_common.middleware import QOS_DEFAULT, Node, run
 from ssf_common.records import EgoMotion, MotionMask, SceneFlow
 from ssf_common.worker import LatestWorker
@@ -39,7 +39,8 @@ class SegNode(Node):
         self.create_timer(report_period, self._report)
         self.create_timer(0.05, lambda: self.matcher.expire(time.monotonic()))
         self.get_logger().info(f"segmenter '{self.segmenter.name}' on {device}")
-        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion, QOS_DEFAULT)
+        self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION,
+                                 ego_motion_listener(self, self.matcher), QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.FLOW, self.on_flow, QOS_DEFAULT)
 
     def on_flow(self, msg: Any) -> None:
@@ -48,13 +49,6 @@ class SegNode(Node):
         if flow is None:
             return
         self.matcher.add_main((flow.stamp_ns, flow.iteration), flow, time.monotonic())
-
-    def on_ego_motion(self, msg: Any) -> None:
-        """Match an ego motion with its flow."""
-        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
-        if ego is None:
-            return
-        self.matcher.add_companion((ego.stamp_ns, ego.iteration), ego)
 
     def _matched(self, flow: SceneFlow, ego: EgoMotion | None) -> None:
         """Queue the flow with its ego motion for segmentation (the newest wins while busy)."""

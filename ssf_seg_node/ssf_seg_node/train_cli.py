@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ssf_common.command_groups import CommandGroups
+from ssf_common.command_groups import CommandGroups, add_training_run_options
 
 
 def register(groups: CommandGroups) -> None:
@@ -26,14 +26,7 @@ def register(groups: CommandGroups) -> None:
     train.add_argument("--method", choices=("ogc", "pointnet"), help="network (default ogc)")
     train.add_argument("--input", choices=("points", "flow", "both"), help="what the network sees (default both)")
     train.add_argument("--flow", help="flow trained on: gt, or a cached estimator's (default rigid)")
-    train.add_argument("--steps", type=int)
-    train.add_argument("--batch-size", type=int)
-    train.add_argument("--minutes", type=float, help="stop and save after this many minutes")
-    train.add_argument("--threads", type=int, help="torch CPU threads")
-    train.add_argument("--device", default="cpu", help="cpu or cuda")
-    train.add_argument("--config", type=Path, help="training config YAML (dotted names as in the checkpoint)")
-    train.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
-                       help="override one training config value, e.g. -p losses.motion:=10")
+    add_training_run_options(train, "losses.motion:=10")
     train.set_defaults(func=run_train_seg)
 
 

@@ -15,7 +15,7 @@ from ssf_common.bags.qos import QosReliability, default_profile
 from ssf_common.bags.reader import open_bag
 from ssf_common.bags.writer import BagWriter
 from ssf_common.errors import BagError
-from support import PointCloud2_, wait_until
+from support import FakeTime, PointCloud2_, wait_until
 
 T0 = 1_650_000_000_000_000_000
 CHATTER_PERIOD_NS = 50_000_000
@@ -249,23 +249,6 @@ class FakeNode:
     def create_publisher(self, type_name: str, topic: str, qos):
         self.qos[topic] = qos
         return FakePublisher(self.log, topic, self.on_publish)
-
-
-class FakeTime:
-    """A clock and a stop event in one: waiting advances the clock instead of sleeping."""
-
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
-
-    def wait(self, seconds: float) -> bool:
-        self.now += seconds
-        return False
-
-    def is_set(self) -> bool:
-        return False
 
 
 def test_player_publishes_each_message_at_its_bag_time_over_the_rate(source_bag):

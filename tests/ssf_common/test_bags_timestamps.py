@@ -13,6 +13,7 @@ from ssf_bringup.cli import main
 from ssf_common import messages
 from ssf_common.bags.play import Player, PlayOptions
 from ssf_common.bags.reader import open_bag
+from support import FakeTime
 from ssf_common.bags.timeline import MAX_GAP_NS, judge
 from ssf_common.bags.writer import BagWriter
 
@@ -94,22 +95,12 @@ def test_bag_info_shows_the_plausible_span_and_warns_in_one_line(outlier_db, cap
     assert report["timestamps"]["outside_span"] == 2 and report["timestamps"]["negative"] == 1
 
 
-class Recorder:
+class Recorder(FakeTime):
     """A fake node whose publishers log what they send, and a fake clock that waiting advances."""
 
     def __init__(self) -> None:
-        self.now = 0.0
+        super().__init__()
         self.sent: list[tuple[float, bytes]] = []
-
-    def __call__(self) -> float:
-        return self.now
-
-    def wait(self, seconds: float) -> bool:
-        self.now += seconds
-        return False
-
-    def is_set(self) -> bool:
-        return False
 
     def create_publisher(self, _type: str, _topic: str, _qos):
         recorder = self
