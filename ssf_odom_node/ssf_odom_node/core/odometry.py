@@ -91,8 +91,14 @@ class OdomConfig(Section):
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
     deskew: bool = Field(True, description="where the scan's points carry time (a sweep that takes its period to "
                          "turn), move each into the sensor frame at the stamp before registering and mapping it, at "
-                         "constant velocity within the sweep (the motion the scan's pose is predicted with), so that "
-                         "the pose is the one at the stamp; scans without time, or all of it zero, are taken as given")
+                         "constant velocity along the ground within the sweep (the motion the scan's pose is predicted "
+                         "with; on the first scan the flow's motion to the next), and fit the sensor's vertical motion "
+                         "over the sweep with the pose (sweep_gates), so that the pose is the one at the stamp; scans "
+                         "without time, or all of it zero, are taken as given")
+    sweep_gates: tuple[float, ...] = Field((0.3, 0.3), description="deskewed scans: gates (m) of the last "
+                                           "point-to-plane iterations, which fit the sensor's rise or fall over the "
+                                           "sweep with the pose (a bump of the road moves it within a period, which "
+                                           "no constant velocity predicts; empty: not fitted)")
     map: MapConfig = MapConfig()
 
 
@@ -152,14 +158,19 @@ class Odometry:
         scan, flow, dynamic = self.check(frame)
         # 1. predict: the motion the last scan's static flow gave, and constant velocity; the scan at its stamp
         by_flow, by_velocity = self.predict(frame.stamp_ns)
-        scan = self.deskewed(scan, frame, by_velocity if by_flow is None else by_flow)
+        scan, shares = self.deskewed(scan, frame, by_velocity if by_flow is None else by_flow, flow, dynamic)
         squared = scan[:, 0] * scan[:, 0] + scan[:, 1] * scan[:, 1]  # horizontal range, squared
-        points, flow, dynamic = self.reduce(scan, flow, dynamic, squared)
+        keep = self.kept(scan, squared)
+        points, flow, dynamic = self.taken(scan, flow, dynamic, keep)
         # 2. the points this method registers and maps: the static ones (ssf) or all
         registered, weights = self.registered_points(points, dynamic)
-        # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ)
+        # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ),
+        # then, on a deskewed sweep, the last ones with the sensor's vertical motion over the sweep
         alignment, source = self.refine(registered, weights, by_flow, by_velocity, self.periods(frame.stamp_ns),
                                         self.prior_pose(frame), self.prior_pose(frame, measured=True))
+        if shares is not None and len(self.map) and self.config.sweep_gates:
+            alignment = self.fit_sweep(alignment, registered, weights, shares[keep], dynamic)
+            scan, points = lifted(scan, shares, alignment.lift), lifted(points, shares[keep], alignment.lift)
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the motion to the next scan: the flow estimator's ego motion (else from the static points and their flow)
@@ -172,30 +183,57 @@ class Odometry:
                         self.moving_points(points, flow, dynamic))
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
                         None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
-                        alignment.rmse, source, len(self.map), len(registered))
+                        alignment.rmse, source, len(self.map), len(registered),
+                        {} if shares is None else {"sweep_lift": alignment.lift})
 
-    def deskewed(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray) -> np.ndarray:
-        """The scan in the sensor frame at its stamp: each point moved from its time by the motion along the ground
-        over the sweep at constant velocity (the predicted one, per scan period); as given without time, with deskew
-        off, or on the first scan (no motion known)."""
-        if not self.config.deskew or not timed(frame.time) or self.stamp_ns is None:
-            return scan
-        periods = self.elapsed(frame.stamp_ns) / self.config.scan_period
-        later = interpolate_poses(self.pose, predicted, np.array([1.0 / periods]))[0]  # odom <- a period on
-        motion = planar(invert(later) @ self.pose)  # the flow's convention: a stamp's frame -> a period later
-        return deskew(scan, check_time(frame.time, len(scan), "odometry: the scan's per-point time"), motion,
-                      self.config.scan_period)
+    def deskewed(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray, flow: np.ndarray | None = None,
+                 dynamic: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The scan in the sensor frame at its stamp, each point moved from its time by the motion along the ground
+        over the sweep at constant velocity (the predicted one, per scan period; on the first scan the flow's motion
+        to the next scan, the one its map is built from), with each point's time before the stamp in scan periods
+        (`shares`); as given, and None, without time, with deskew off, or on a first scan without flow."""
+        if not self.config.deskew or not timed(frame.time):
+            return scan, None
+        time = check_time(frame.time, len(scan), "odometry: the scan's per-point time")
+        if self.stamp_ns is None:
+            motion = self.flow_motion(np.asarray(scan, np.float64), None if flow is None else flow.astype(np.float64),
+                                      None if dynamic is None else dynamic.astype(np.float64), self.given_ego(frame))
+            if motion is None:
+                return scan, None
+        else:
+            periods = self.elapsed(frame.stamp_ns) / self.config.scan_period
+            later = interpolate_poses(self.pose, predicted, np.array([1.0 / periods]))[0]  # odom <- a period on
+            motion = invert(later) @ self.pose  # the flow's convention: a stamp's frame -> a period later
+        shares = -time / self.config.scan_period  # periods before the stamp: 1 where a sweep ending at it started
+        return deskew(scan, time, planar(motion), self.config.scan_period), shares
+
+    def fit_sweep(self, alignment: Alignment, registered: np.ndarray, weights: np.ndarray, shares: np.ndarray,
+                  dynamic: np.ndarray | None) -> Alignment:
+        """The refined pose refined again with the sensor's vertical motion over the sweep (`shares`: those of the
+        kept points): a bump lifts or drops the sensor within a period, which the deskew along the ground leaves in
+        the scan as a ramp around it."""
+        static = self.registered_index(dynamic)
+        return point_to_plane(registered, weights, self.map.target(), alignment.transform, self.config.sweep_gates,
+                              self.config.kernel, shares=shares if static is None else shares[static])
+
+    def kept(self, points: np.ndarray, squared: np.ndarray) -> np.ndarray:
+        """Indices of the points within range (`squared`: their horizontal range, squared), one per voxel."""
+        keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
+        if self.voxel is None:
+            self.voxel = self.choose_voxel(points[keep])
+        return keep[voxel_indices(points.take(keep, axis=0), self.voxel)] if len(keep) else keep
+
+    @staticmethod
+    def taken(points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None, keep: np.ndarray):
+        """The kept points with their flow and dynamic probability, as float64."""
+        return (points.take(keep, axis=0).astype(np.float64),  # take: 3x faster than indexing rows
+                None if flow is None else flow.take(keep, axis=0).astype(np.float64),
+                None if dynamic is None else dynamic[keep].astype(np.float64))
 
     def reduce(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None, squared: np.ndarray):
         """The points within range (`squared`: their horizontal range, squared), one per voxel, with their flow and
         dynamic probability."""
-        keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
-        if self.voxel is None:
-            self.voxel = self.choose_voxel(points[keep])
-        keep = keep[voxel_indices(points.take(keep, axis=0), self.voxel)] if len(keep) else keep
-        return (points.take(keep, axis=0).astype(np.float64),  # take: 3x faster than indexing rows
-                None if flow is None else flow.take(keep, axis=0).astype(np.float64),
-                None if dynamic is None else dynamic[keep].astype(np.float64))
+        return self.taken(points, flow, dynamic, self.kept(points, squared))
 
     def choose_voxel(self, points: np.ndarray) -> float:
         """The configured voxel, shrunk while the first scan would keep fewer than min_points; the map follows."""
@@ -328,10 +366,16 @@ class Odometry:
         """The points registered, with their weights: for ssf the static ones, weighted by their static probability;
         all of them for the other methods; near ones weigh less (`near_weights`)."""
         weights = np.ones(len(points))
-        if self.method is OdomMethod.SSF and dynamic is not None:
-            static = dynamic <= self.config.static_threshold
+        static = self.registered_index(dynamic)
+        if static is not None:
             points, weights = points[static], 1.0 - dynamic[static]
         return points, weights * self.near_weights(points)
+
+    def registered_index(self, dynamic: np.ndarray | None) -> np.ndarray | None:
+        """Which points are registered: for ssf with a segmentation the static ones (a mask), else all (None)."""
+        if self.method is OdomMethod.SSF and dynamic is not None:
+            return dynamic <= self.config.static_threshold
+        return None
 
     def near_weights(self, points: np.ndarray) -> np.ndarray:
         """Weight of each point by its horizontal range: range / near_range, between near_weight and 1. In a queue the
@@ -528,6 +572,15 @@ class Odometry:
         if np.count_nonzero(weights > 0) < 3:
             return None
         return flow_transform(points, flow, weights)
+
+
+def lifted(points: np.ndarray, shares: np.ndarray, lift: float) -> np.ndarray:
+    """Points raised by their share of the sweep's `lift` along the sensor's z axis (the vertical deskew)."""
+    if lift == 0.0:
+        return points
+    raised = points.copy()
+    raised[:, 2] += (shares * lift).astype(points.dtype)
+    return raised
 
 
 def make_odometry(method: str | OdomMethod | None = None, config: OdomConfig | None = None) -> Odometry:
