@@ -73,13 +73,13 @@ def test_the_first_scan_is_deskewed_with_the_flows_motion_to_the_next():
     ego = invert(turn)  # the flow's convention: the stamp's frame -> the next stamp's
     odometry = make_odometry("ssf", OdomConfig())
     flow = transform_points(ego, points) - points
-    deskewed, shares = odometry.deskewed(points, OdomInput(0, points, flow, np.zeros(len(points)), ego=ego, time=time),
-                                         np.eye(4), flow, np.zeros(len(points)))
+    frame = OdomInput(0, points, flow, np.zeros(len(points)), ego=ego, time=time)
+    motion = odometry.sweep_motion(points, frame, np.eye(4), flow, np.zeros(len(points)))
+    deskewed = odometry.prepared(points, frame, flow, np.zeros(len(points)), motion)
     assert np.abs(points - world).max() > 0.5  # the sweep took the points up to a metre apart
-    assert np.abs(deskewed - world).max() < 0.01
-    np.testing.assert_allclose(shares, -time / PERIOD)
-    without_flow, none = odometry.deskewed(points, OdomInput(0, points, time=time), np.eye(4))
-    assert none is None and without_flow is points  # no motion known: taken as swept
+    assert np.abs(deskewed.scan - world).max() < 0.01
+    np.testing.assert_allclose(deskewed.shares, -time / PERIOD)
+    assert odometry.sweep_motion(points, OdomInput(0, points, time=time), np.eye(4)) is None  # no motion: as swept
 
 
 def test_an_instant_sweep_is_registered_as_a_scan_without_time():
@@ -87,3 +87,23 @@ def test_an_instant_sweep_is_registered_as_a_scan_without_time():
         np.testing.assert_array_equal(instant.pose, plain.pose)
         np.testing.assert_array_equal(instant.covariance, plain.covariance)
         assert instant.extras == plain.extras == {}
+
+
+def test_where_the_flow_contradicts_constant_velocity_its_search_registers_the_sweep_deskewed_at_that_velocity():
+    world = static_street()
+    poses = [make_pose(SPEED_STEP * index, 0.0, 0.0) for index in range(5)]
+    odometry = make_odometry("ssf", OdomConfig())
+    for index in (1, 2, 3):
+        points, time = swept(world, poses[index - 1], poses[index])
+        ego = invert(poses[index + 1]) @ poses[index]
+        flow = transform_points(ego, points) - points
+        frame = OdomInput(index * STEP_NS, points, flow, np.zeros(len(points), np.float32), ego=ego, time=time)
+        if index == 3:
+            by_flow, by_velocity = odometry.predict(frame.stamp_ns)
+            flow_motion = odometry.sweep_motion(points, frame, by_flow)
+            assert odometry.velocity_deskewed(points, frame, flow, None, flow_motion, by_flow, by_velocity) is None
+            turned = by_flow @ make_pose(0.0, 0.0, 0.0, 0.05)  # a flow that misjudged a turn by 3 degrees
+            found = odometry.velocity_deskewed(points, frame, flow, None, odometry.sweep_motion(points, frame, turned),
+                                               turned, by_velocity)
+            assert found is not None and np.abs(found.scan - transform_points(invert(poses[3]), world)).max() < 0.02
+        odometry.step(frame)
