@@ -389,19 +389,19 @@ def format_bench(bench: GraphBench) -> str:
 
 def bench_graph_command(args: argparse.Namespace) -> int:
     """ssf bench graph."""
-    from ssf_bringup.demo import check_scenario
+    from ssf_bringup.demo import check_scenario, scenario_settings
     from ssf_common.checks import require_finite
     from ssf_common.jsonio import write_json
     from ssf_common.paths import check_writable
 
     duration = require_finite(args.duration, "--duration", above=0.0)
-    check_scenario(args.scenario)
     if args.json:
         check_writable(args.json, "result file")
     if args.episodes < 0:
         raise ConfigError(f"--episodes must be 0 (back to back until the duration is over) or more, got {args.episodes}")
     parameters = per_node_parameters(args.param)
-    bench_graph_spec(args.scenario, args.episodes, parameters)  # unknown node names fail here, before any process
+    spec = bench_graph_spec(args.scenario, args.episodes, parameters)  # unknown node names fail here, before any process
+    check_scenario(args.scenario, scenario_settings(spec))  # and a bad scenario or scenario setting
     print(f"bench graph: {args.scenario} in real time for {WARMUP_S:g} + {duration:g} s, every node its own process",
           file=sys.stderr)
     bench = run_bench_graph(duration, args.scenario, sys.stderr if args.verbose else None, args.episodes, parameters)

@@ -62,6 +62,10 @@ def _register_graph_commands(groups: CommandGroups) -> None:
     demo.add_argument("--record-all", action="store_true",
                       help="record every topic, the fusion loop's intermediate clouds (/ssf/flow of every iteration, "
                       "/ssf/mask, /ssf/mask_hint) and the per-point truth (/sim/ground_truth/flow) included")
+    demo.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
+                      help="a scenario setting of the simulator, over the graph's (repeatable); the graph sweeps each "
+                      "LiDAR column at its own time (rolling shutter, deskewed by the flow and the odometry): "
+                      "--sim-param lidar.rolling_shutter:=false casts instant sweeps")
     demo.add_argument("--record", nargs="+", default=[], metavar="TOPIC",
                       help="also record these topics (e.g. /ssf/flow /ssf/mask), and every /ssf/semantic_flow when "
                       "named (by default every other scan's)")
@@ -94,6 +98,7 @@ def _demo(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from ssf_bringup.demo import Recording, run_demo
+    from ssf_common.config import parse_overrides
     from ssf_common.errors import ConfigError
     from ssf_common.viewer.command import viewer_config
 
@@ -103,7 +108,7 @@ def _demo(args: argparse.Namespace) -> int:
     video = Path(args.video) if args.video else None
     return run_demo(args.scenario, args.duration, out, args.seed, viewer=viewer_config(args, "ssf demo"), video=video,
                     driver=args.driver, recording=Recording.chosen(args.record_all, args.record),
-                    realtime=args.realtime)
+                    realtime=args.realtime, sim_settings=parse_overrides(args.sim_param, "--sim-param"))
 
 
 def _register_bench_commands(groups: CommandGroups) -> None:

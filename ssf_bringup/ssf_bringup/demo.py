@@ -107,9 +107,11 @@ def in_real_time(graph: GraphSpec) -> GraphSpec:
 
 
 def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, driver: str = "planner",
-               recording: Recording | None = None, realtime: bool = False) -> GraphSpec:
-    """The shipped demo graph with this run's scenario, duration, recorded topics and output paths filled in, in
-    lockstep or in real time (the episode picture is drawn from the recording afterwards, see `draw_episode`)."""
+               recording: Recording | None = None, realtime: bool = False,
+               sim_settings: dict[str, Any] | None = None) -> GraphSpec:
+    """The shipped demo graph with this run's scenario, its settings (`sim_settings`: dotted names over the graph's,
+    e.g. lidar.rolling_shutter), duration, recorded topics and output paths filled in, in lockstep or in real time
+    (the episode picture is drawn from the recording afterwards, see `draw_episode`)."""
     graph = load_graph(Path(str(resources.files("ssf_bringup") / "graphs" / "demo.yaml")))
     recording = recording or Recording.chosen()
     nodes: list[NodeSpec] = []
@@ -119,6 +121,7 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, dr
         if node.executable == "sim_bridge":
             parameters = {
                 **node.parameters,
+                **(sim_settings or {}),
                 "scenario": scenario,
                 "seed": seed,
                 "duration_s": duration_s,
@@ -133,13 +136,19 @@ def demo_graph(paths: DemoPaths, scenario: str, duration_s: float, seed: int, dr
     return in_real_time(graph) if realtime else graph
 
 
-def check_scenario(scenario: str) -> Any:
-    """Read the scenario with the installed simulator's own reader, so that a bad one fails in one line here; the
-    scenario read (None without a simulator)."""
+def check_scenario(scenario: str, settings: dict[str, Any] | None = None) -> Any:
+    """Read the scenario with its dotted settings with the installed simulator's own reader, so that a bad one fails
+    in one line here; the scenario read (None without a simulator)."""
     found = None
     for loader in metadata.entry_points(group=SCENARIO_LOADERS):
-        found = loader.load()(scenario)
+        found = loader.load()(scenario, settings or None)
     return found
+
+
+def scenario_settings(graph: GraphSpec) -> dict[str, Any]:
+    """The scenario settings (dotted names, e.g. lidar.rolling_shutter) the graph gives its simulator."""
+    sim = next((node for node in graph.nodes if node.executable == "sim_bridge"), None)
+    return {} if sim is None else {name: value for name, value in sim.parameters.items() if "." in name}
 
 
 def recording_estimate(scenario: Any, duration_s: float, recording: Recording) -> int:
@@ -163,8 +172,9 @@ def check_disk(out: Path, needed: int, duration_s: float) -> None:
 
 
 def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: Path | None = None,
-                 recording: Recording | None = None) -> None:
-    """Refuse bad flags, and a disk too full for the recording, in one line before any process starts."""
+                 recording: Recording | None = None, settings: dict[str, Any] | None = None) -> None:
+    """Refuse bad flags (`settings`: the scenario's dotted ones), and a disk too full for the recording, in one line
+    before any process starts."""
     from ssf_common.bags.record import check_topic_name
 
     require_finite(duration_s, "--duration", above=0.0)
@@ -173,7 +183,7 @@ def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: 
     recording = recording or Recording.chosen()
     for topic in recording.topics or ():
         check_topic_name(topic)
-    read = check_scenario(scenario)
+    read = check_scenario(scenario, settings)
     if DemoPaths(out).recording.exists():
         raise ConfigError(f"{DemoPaths(out).recording} already exists; choose another --out")
     check_writable_dir(out, "--out folder")
@@ -186,14 +196,15 @@ def check_inputs(scenario: str, duration_s: float, out: Path, seed: int, video: 
 
 def run_demo(scenario: str, duration_s: float, out: Path, seed: int = -1, *, viewer: ViewerConfig | None = None,
              video: Path | None = None, driver: str = "planner", recording: Recording | None = None,
-             realtime: bool = False) -> int:
+             realtime: bool = False, sim_settings: dict[str, Any] | None = None) -> int:
     """Run the graph until the episode ends (served live to Foxglove with a viewer config, saying how far it is every
     half minute); draw the episode from its recording (and animate it to `video`); print where everything is and
     how big the recording is, or what went wrong (exit 1)."""
     recording = recording or Recording.chosen()
-    check_inputs(scenario, duration_s, out, seed, video, recording)
     paths = DemoPaths(out)
-    graph = with_viewer(demo_graph(paths, scenario, duration_s, seed, driver, recording, realtime), viewer)
+    graph = demo_graph(paths, scenario, duration_s, seed, driver, recording, realtime, sim_settings)
+    check_inputs(scenario, duration_s, out, seed, video, recording, scenario_settings(graph))
+    graph = with_viewer(graph, viewer)
     clock = SimClock()  # a middleware that cannot start here (ROS_DOMAIN_ID, rclpy) fails in one line, before any node
     try:
         paths.graph.write_text(config_lib.dump(graph))

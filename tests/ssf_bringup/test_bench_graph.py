@@ -79,6 +79,8 @@ def test_stage_stats_travel_as_diagnostics():
 
 
 def test_the_bench_graph_is_the_demo_graph_in_real_time():
+    from ssf_bringup.bench_graph import per_node_parameters
+
     graph = bench_graph_spec("urban_200")
     executables = [node.executable for node in graph.nodes]
     assert "ssf" not in executables  # no recorder
@@ -88,6 +90,9 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
     assert sim.parameters["episodes"] == 1
     back_to_back = next(node for node in bench_graph_spec("urban_200", 0).nodes if node.executable == "sim_bridge")
     assert back_to_back.parameters["episodes"] == 0
+    assert sim.parameters["lidar.rolling_shutter"] is True  # measured on the sweeps `ssf demo` casts
+    instant = bench_graph_spec("urban_200", 1, per_node_parameters(["sim_bridge:lidar.rolling_shutter:=false"]))
+    assert next(node for node in instant.nodes if node.executable == "sim_bridge").parameters["lidar.rolling_shutter"] is False
 
 
 def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():

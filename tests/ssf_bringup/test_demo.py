@@ -14,7 +14,9 @@ import pytest
 from ssf_bringup import demo
 from ssf_bringup.cli import main
 from ssf_common import messages
+from ssf_bringup.launcher import command_line
 from ssf_common.bags.reader import open_bag
+from ssf_common.pointcloud import decode_cloud
 
 DURATION_S = 3.0
 STEPS = int(DURATION_S * 10)  # the scenario's dt is 0.1 s
@@ -95,6 +97,7 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
         commands = [bag.decode(m) for m in bag.messages(["/cmd_vel"])]
         truth = [bag.decode(m) for m in bag.messages(["/sim/ground_truth/odom"])]
         odometry = [bag.decode(m) for m in bag.messages(["/odom"])]
+        first_scan = bag.decode(next(bag.messages(["/lidar/points"])))
     assert scans == sorted(set(scans)) and all(stamp % 100_000_000 == 0 for stamp in scans)
     # the whole loop closed: each stage answered most scans, and the planner's commands moved the car
     assert len(semantic) >= STEPS // 2 and len(odometry) >= STEPS // 2 and len(commands) >= STEPS // 2
@@ -108,6 +111,21 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
     assert episode[-1].scenario == "urban_100" and abs(episode[-1].time - DURATION_S) < 1e-9
     assert {messages.stamp_ns(f.header.stamp) for f in flow} <= set(scans)  # the flow answers recorded scans
     assert all({"flow_x", "flow_y", "flow_z"} <= {field.name for field in f.fields} for f in flow)
+    swept = decode_cloud(first_scan).time  # a rolling-shutter sweep: its columns fired across the period
+    assert swept is not None and -0.1 < swept.min() < -0.09 and swept.max() == 0.0
+
+
+def test_the_demo_graph_sweeps_with_a_rolling_shutter_unless_told_otherwise(tmp_path):
+    """`ssf demo` (and `ssf bench graph`, the same graph) casts each LiDAR column at its own time; --sim-param
+    lidar.rolling_shutter:=false casts instant sweeps."""
+    default = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1)
+    assert demo.scenario_settings(default) == {"lidar.rolling_shutter": True}
+    assert demo.check_scenario("urban_100", demo.scenario_settings(default)).lidar.rolling_shutter
+    instant = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1,
+                              sim_settings={"lidar.rolling_shutter": False})
+    assert not demo.check_scenario("urban_100", demo.scenario_settings(instant)).lidar.rolling_shutter
+    sim = next(node for node in instant.nodes if node.executable == "sim_bridge")
+    assert "lidar.rolling_shutter:=false" in command_line(sim, {})
 
 
 @pytest.mark.parametrize(
@@ -118,6 +136,7 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
         (["--seed", "-7"], "--seed must be an integer from 0 to 4294967295"),
         (["--scenario", "nope"], "unknown scenario 'nope'"),
         (["--out", "/proc/nope/demo"], "/proc/nope/demo: cannot create the folder"),
+        (["--sim-param", "lidar.rolling_shutter:=maybe"], "lidar.rolling_shutter"),
     ],
 )
 def test_bad_demo_flags_are_one_line_before_any_process_starts(capsys, tmp_path, args, fragment):

@@ -7,7 +7,8 @@ period: the transform that maps static points of the frame at a stamp into the f
 At constant velocity the frame at time t relative to the stamp is reached by that motion raised to -t / period, so a
 point taken at t lies at motion^(-t / period) p in the stamp's frame (se3.interpolate_poses, a constant-twist motion).
 Flow and odometry deskew with the motion along the ground only (`planar`): a car's height, roll and pitch follow the
-road's bumps, which change within a period and which no constant velocity predicts."""
+road's bumps, which change within a period and which no constant velocity predicts; the odometry fits the sensor's
+rise or fall over each sweep with the scan's pose instead (ssf_odom_node registration, `shares`)."""
 
 from __future__ import annotations
 

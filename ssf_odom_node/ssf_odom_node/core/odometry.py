@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -91,8 +92,14 @@ class OdomConfig(Section):
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
     deskew: bool = Field(True, description="where the scan's points carry time (a sweep that takes its period to "
                          "turn), move each into the sensor frame at the stamp before registering and mapping it, at "
-                         "constant velocity within the sweep (the motion the scan's pose is predicted with), so that "
-                         "the pose is the one at the stamp; scans without time, or all of it zero, are taken as given")
+                         "constant velocity along the ground within the sweep (the motion the scan's pose is predicted "
+                         "with; on the first scan the flow's motion to the next), and fit the sensor's vertical motion "
+                         "over the sweep with the pose (sweep_gates), so that the pose is the one at the stamp; scans "
+                         "without time, or all of it zero, are taken as given")
+    sweep_gates: tuple[float, ...] = Field((0.3, 0.3), description="deskewed scans: gates (m) of the last "
+                                           "point-to-plane iterations, which fit the sensor's rise or fall over the "
+                                           "sweep with the pose (a bump of the road moves it within a period, which "
+                                           "no constant velocity predicts; empty: not fitted)")
     map: MapConfig = MapConfig()
 
 
@@ -111,6 +118,20 @@ class OdomInput:
     ego: np.ndarray | None = None  # (4, 4) this scan -> the next, as the flow estimator aligned it (scan-t coordinates
     # of static points -> the next scan's frame); ssf takes it as the motion to the next scan instead of fitting one
     time: np.ndarray | None = None  # (N,) each point's time, s relative to the stamp (None or all zero: an instant sweep)
+
+
+class Prepared(NamedTuple):
+    """A scan at its stamp and what the odometry registers and maps of it."""
+
+    scan: np.ndarray  # (N, 3) sensor frame at the stamp (deskewed where its points carry time)
+    shares: np.ndarray | None  # (N,) each point's time before the stamp, in scan periods; None: not deskewed
+    squared: np.ndarray  # (N,) horizontal range, squared
+    keep: np.ndarray  # indices of the points within range, one per voxel
+    points: np.ndarray  # (K, 3) float64, the kept points
+    flow: np.ndarray | None  # (K, 3) their flow
+    dynamic: np.ndarray | None  # (K,) their dynamic probability
+    registered: np.ndarray  # the kept points registered (ssf: the static ones)
+    weights: np.ndarray  # their weights
 
 
 @dataclass(frozen=True)
@@ -149,53 +170,114 @@ class Odometry:
 
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
-        scan, flow, dynamic = self.check(frame)
-        # 1. predict: the motion the last scan's static flow gave, and constant velocity; the scan at its stamp
+        raw, flow, dynamic = self.check(frame)
+        # 1. predict: the motion the last scan's static flow gave, and constant velocity; the scan at its stamp, and
+        # 2. the points this method registers and maps of it: the static ones (ssf) or all
         by_flow, by_velocity = self.predict(frame.stamp_ns)
-        scan = self.deskewed(scan, frame, by_velocity if by_flow is None else by_flow)
-        squared = scan[:, 0] * scan[:, 0] + scan[:, 1] * scan[:, 1]  # horizontal range, squared
-        points, flow, dynamic = self.reduce(scan, flow, dynamic, squared)
-        # 2. the points this method registers and maps: the static ones (ssf) or all
-        registered, weights = self.registered_points(points, dynamic)
-        # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ)
-        alignment, source = self.refine(registered, weights, by_flow, by_velocity, self.periods(frame.stamp_ns),
-                                        self.prior_pose(frame), self.prior_pose(frame, measured=True))
+        motion = self.sweep_motion(raw, frame, by_velocity if by_flow is None else by_flow, flow, dynamic)
+        scan = self.prepared(raw, frame, flow, dynamic, motion)
+        # 3. a few point-to-plane iterations against the local static map (a search where the two predictions differ,
+        # on a sweep deskewed at constant velocity for that start), then the sensor's rise or fall over a sweep
+        by_velocity_scan = self.velocity_deskewed(raw, frame, flow, dynamic, motion, by_flow, by_velocity)
+        alignment, source = self.refine(scan.registered, scan.weights, by_flow, by_velocity,
+                                        self.periods(frame.stamp_ns), self.prior_pose(frame),
+                                        self.prior_pose(frame, measured=True),
+                                        None if by_velocity_scan is None else (by_velocity_scan.registered,
+                                                                               by_velocity_scan.weights))
+        if source == "velocity" and by_velocity_scan is not None:  # the sweep as constant velocity deskewed it
+            scan = by_velocity_scan
+        if motion is not None and len(self.map) and self.config.sweep_gates:
+            alignment, scan = self.fit_sweep(alignment, scan)
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the motion to the next scan: the flow estimator's ego motion (else from the static points and their flow)
-        self.next_motion = self.flow_motion(points, flow, dynamic, self.given_ego(frame))
+        self.next_motion = self.flow_motion(scan.points, scan.flow, scan.dynamic, self.given_ego(frame))
         # 6. the registered points join the map at the new pose (for ssf: where the segmentation sees, points that do
         # not move on their own, not where it saw moving points lately, and the scan's beams clear what they pass
         # through; static points farther out join only the registration target, for a few scans)
-        self.update_map(*self.mapped_points(points, flow, dynamic),
-                        np.compress(squared >= self.config.min_range ** 2, scan, axis=0),
-                        self.moving_points(points, flow, dynamic))
+        self.update_map(*self.mapped_points(scan.points, scan.flow, scan.dynamic),
+                        np.compress(scan.squared >= self.config.min_range ** 2, scan.scan, axis=0),
+                        self.moving_points(scan.points, scan.flow, scan.dynamic))
         return OdomStep(frame.stamp_ns, self.pose.copy(), self.covariance.copy(), self.velocity.copy(),
                         None if self.next_motion is None else self.next_motion.copy(), alignment.inliers,
-                        alignment.rmse, source, len(self.map), len(registered))
+                        alignment.rmse, source, len(self.map), len(scan.registered),
+                        {} if motion is None else {"sweep_lift": alignment.lift})
 
-    def deskewed(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray) -> np.ndarray:
-        """The scan in the sensor frame at its stamp: each point moved from its time by the motion along the ground
-        over the sweep at constant velocity (the predicted one, per scan period); as given without time, with deskew
-        off, or on the first scan (no motion known)."""
-        if not self.config.deskew or not timed(frame.time) or self.stamp_ns is None:
-            return scan
-        periods = self.elapsed(frame.stamp_ns) / self.config.scan_period
-        later = interpolate_poses(self.pose, predicted, np.array([1.0 / periods]))[0]  # odom <- a period on
-        motion = planar(invert(later) @ self.pose)  # the flow's convention: a stamp's frame -> a period later
-        return deskew(scan, check_time(frame.time, len(scan), "odometry: the scan's per-point time"), motion,
-                      self.config.scan_period)
+    def sweep_motion(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray, flow: np.ndarray | None = None,
+                     dynamic: np.ndarray | None = None) -> np.ndarray | None:
+        """The sensor's motion along the ground over the scan's sweep (the flow's convention: the stamp's frame -> a
+        period later), at constant velocity: the predicted one, per scan period; on the first scan the flow's motion to
+        the next scan (the one its map is built from). None: nothing to deskew (no time, deskew off, or a first scan
+        without flow)."""
+        if not self.config.deskew or not timed(frame.time):
+            return None
+        if self.stamp_ns is not None:
+            return self.period_motion(predicted, frame.stamp_ns)
+        motion = self.flow_motion(np.asarray(scan, np.float64), None if flow is None else flow.astype(np.float64),
+                                  None if dynamic is None else dynamic.astype(np.float64), self.given_ego(frame))
+        return None if motion is None else planar(motion)
+
+    def velocity_deskewed(self, raw: np.ndarray, frame: OdomInput, flow: np.ndarray | None,
+                          dynamic: np.ndarray | None, motion: np.ndarray | None, by_flow: np.ndarray | None,
+                          by_velocity: np.ndarray) -> Prepared | None:
+        """Where the sweep was deskewed with the flow's motion and constant velocity contradicts it (the search from
+        constant velocity will run too), the sweep deskewed at constant velocity: each start registers the sweep as
+        its own motion would have swept it (a flow that misjudged a turn-in deskews the sweep wrong as well); else
+        None."""
+        if motion is None or by_flow is None or self.steps < 2 or not len(self.map):
+            return None
+        periods = self.periods(frame.stamp_ns)
+        if periods >= GAP_PERIODS or self.agree(by_flow, by_velocity, periods):
+            return None
+        return self.prepared(raw, frame, flow, dynamic, self.period_motion(by_velocity, frame.stamp_ns))
+
+    def period_motion(self, pose: np.ndarray, stamp_ns: int) -> np.ndarray:
+        """The motion along the ground over one scan period towards `pose` at `stamp_ns`, from the last scan's."""
+        periods = self.elapsed(stamp_ns) / self.config.scan_period
+        later = interpolate_poses(self.pose, pose, np.array([1.0 / periods]))[0]  # odom <- a period on
+        return planar(invert(later) @ self.pose)  # the flow's convention: a stamp's frame -> a period later
+
+    def prepared(self, raw: np.ndarray, frame: OdomInput, flow: np.ndarray | None, dynamic: np.ndarray | None,
+                 motion: np.ndarray | None) -> Prepared:
+        """The scan at its stamp (deskewed with `motion`, where not None) and what of it is registered and mapped."""
+        scan, shares = raw, None
+        if motion is not None:
+            time = check_time(frame.time, len(raw), "odometry: the scan's per-point time")
+            scan, shares = deskew(raw, time, motion, self.config.scan_period), -time / self.config.scan_period
+        squared = scan[:, 0] * scan[:, 0] + scan[:, 1] * scan[:, 1]  # horizontal range, squared
+        keep = self.kept(scan, squared)
+        points, flow, dynamic = self.taken(scan, flow, dynamic, keep)
+        return Prepared(scan, shares, squared, keep, points, flow, dynamic, *self.registered_points(points, dynamic))
+
+    def fit_sweep(self, alignment: Alignment, scan: Prepared) -> tuple[Alignment, Prepared]:
+        """A deskewed sweep's pose refined again with the sensor's rise or fall over the sweep (sweep_gates: a bump
+        lifts or drops the sensor within a period, which the deskew along the ground leaves in the scan as a ramp
+        around it); the alignment and the scan lifted so."""
+        static = self.registered_index(scan.dynamic)
+        shares = scan.shares[scan.keep] if static is None else scan.shares[scan.keep][static]
+        alignment = point_to_plane(scan.registered, scan.weights, self.map.target(), alignment.transform,
+                                   self.config.sweep_gates, self.config.kernel, shares=shares)
+        return alignment, scan._replace(scan=lifted(scan.scan, scan.shares, alignment.lift),
+                                        points=lifted(scan.points, scan.shares[scan.keep], alignment.lift))
+
+    def kept(self, points: np.ndarray, squared: np.ndarray) -> np.ndarray:
+        """Indices of the points within range (`squared`: their horizontal range, squared), one per voxel."""
+        keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
+        if self.voxel is None:
+            self.voxel = self.choose_voxel(points[keep])
+        return keep[voxel_indices(points.take(keep, axis=0), self.voxel)] if len(keep) else keep
+
+    @staticmethod
+    def taken(points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None, keep: np.ndarray):
+        """The kept points with their flow and dynamic probability, as float64."""
+        return (points.take(keep, axis=0).astype(np.float64),  # take: 3x faster than indexing rows
+                None if flow is None else flow.take(keep, axis=0).astype(np.float64),
+                None if dynamic is None else dynamic[keep].astype(np.float64))
 
     def reduce(self, points: np.ndarray, flow: np.ndarray | None, dynamic: np.ndarray | None, squared: np.ndarray):
         """The points within range (`squared`: their horizontal range, squared), one per voxel, with their flow and
         dynamic probability."""
-        keep = np.flatnonzero((squared >= self.config.min_range ** 2) & (squared <= self.config.max_range ** 2))
-        if self.voxel is None:
-            self.voxel = self.choose_voxel(points[keep])
-        keep = keep[voxel_indices(points.take(keep, axis=0), self.voxel)] if len(keep) else keep
-        return (points.take(keep, axis=0).astype(np.float64),  # take: 3x faster than indexing rows
-                None if flow is None else flow.take(keep, axis=0).astype(np.float64),
-                None if dynamic is None else dynamic[keep].astype(np.float64))
+        return self.taken(points, flow, dynamic, self.kept(points, squared))
 
     def choose_voxel(self, points: np.ndarray) -> float:
         """The configured voxel, shrunk while the first scan would keep fewer than min_points; the map follows."""
@@ -328,10 +410,16 @@ class Odometry:
         """The points registered, with their weights: for ssf the static ones, weighted by their static probability;
         all of them for the other methods; near ones weigh less (`near_weights`)."""
         weights = np.ones(len(points))
-        if self.method is OdomMethod.SSF and dynamic is not None:
-            static = dynamic <= self.config.static_threshold
+        static = self.registered_index(dynamic)
+        if static is not None:
             points, weights = points[static], 1.0 - dynamic[static]
         return points, weights * self.near_weights(points)
+
+    def registered_index(self, dynamic: np.ndarray | None) -> np.ndarray | None:
+        """Which points are registered: for ssf with a segmentation the static ones (a mask), else all (None)."""
+        if self.method is OdomMethod.SSF and dynamic is not None:
+            return dynamic <= self.config.static_threshold
+        return None
 
     def near_weights(self, points: np.ndarray) -> np.ndarray:
         """Weight of each point by its horizontal range: range / near_range, between near_weight and 1. In a queue the
@@ -376,17 +464,19 @@ class Odometry:
 
     def refine(self, points: np.ndarray, weights: np.ndarray | None, by_flow: np.ndarray | None,
                by_velocity: np.ndarray, periods: float = 1.0, by_prior: np.ndarray | None = None,
-               by_measured: np.ndarray | None = None) -> tuple[Alignment, str]:
+               by_measured: np.ndarray | None = None,
+               searched: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Alignment, str]:
         """Point-to-plane Gauss-Newton of the registered points against the map from the predictions, one scan period
         after the last scan or across a gap; with the vehicle's measured motion, from that or the flow alone (a gyro
-        measures the turns a heading search looks for)."""
+        measures the turns a heading search looks for). `searched`: the points (and weights) the search from constant
+        velocity registers instead, one scan period on (a sweep deskewed with that motion)."""
         if len(self.map) == 0:
             return Alignment(by_velocity if by_flow is None else by_flow, np.zeros((6, 6)), 0, 0.0, 0), "start"
         target = self.map.target()
         if by_measured is not None:
             return self.refine_measured(points, weights, target, by_flow, by_measured, periods)
         if periods < GAP_PERIODS:
-            return self.refine_next(points, weights, target, by_flow, by_velocity, periods)
+            return self.refine_next(points, weights, target, by_flow, by_velocity, periods, searched)
         return self.refine_across_gap(points, weights, target, by_flow, by_velocity, by_prior, periods)
 
     def refine_measured(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
@@ -402,7 +492,8 @@ class Odometry:
         return point_to_plane(points, weights, target, by_measured, gates, kernel), "measured"
 
     def refine_next(self, points: np.ndarray, weights: np.ndarray | None, target, by_flow: np.ndarray | None,
-                    by_velocity: np.ndarray, periods: float = 1.0) -> tuple[Alignment, str]:
+                    by_velocity: np.ndarray, periods: float = 1.0,
+                    searched: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Alignment, str]:
         """A few iterations from the flow's prediction; where it contradicts constant velocity (or there is no flow),
         a search from constant velocity too, and the result that matches more points wins; a flow past the flow gate
         is not refined at all."""
@@ -413,7 +504,8 @@ class Odometry:
             from_flow = point_to_plane(points, weights, target, by_flow, self.config.refine_gates, self.config.kernel)
             if self.steps < 2 or self.agree(by_flow, by_velocity, periods):
                 return from_flow, "flow"
-        searched = point_to_plane(points, weights, target, by_velocity, self.config.search_gates, self.config.kernel)
+        searched = point_to_plane(*(searched or (points, weights)), target, by_velocity, self.config.search_gates,
+                                  self.config.kernel)
         if by_flow is None:
             return searched, "velocity"
         if searched.inliers <= from_flow.inliers:
@@ -528,6 +620,15 @@ class Odometry:
         if np.count_nonzero(weights > 0) < 3:
             return None
         return flow_transform(points, flow, weights)
+
+
+def lifted(points: np.ndarray, shares: np.ndarray, lift: float) -> np.ndarray:
+    """Points raised by their share of the sweep's `lift` along the sensor's z axis (the vertical deskew)."""
+    if lift == 0.0:
+        return points
+    raised = points.copy()
+    raised[:, 2] += (shares * lift).astype(points.dtype)
+    return raised
 
 
 def make_odometry(method: str | OdomMethod | None = None, config: OdomConfig | None = None) -> Odometry:

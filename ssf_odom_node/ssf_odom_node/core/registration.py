@@ -40,6 +40,8 @@ class Alignment(NamedTuple):
     inliers: int  # points matched within the gate on the last iteration
     rmse: float  # weighted RMS point-to-plane residual (m) on the last iteration
     iterations: int
+    lift: float = 0.0  # where fitted (`shares`): the height (sensor frame, m) a point gains per sweep period before
+    # the stamp, i.e. how far the sensor sank over one sweep; 0 where not fitted
 
 
 def estimate_normals(points: np.ndarray, neighbours: int = 8, at: np.ndarray | None = None) -> np.ndarray:
@@ -101,18 +103,22 @@ def log_se3(transform: np.ndarray) -> np.ndarray:
 
 
 def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: PlaneTarget, initial: np.ndarray,
-                   distances: tuple[float, ...], kernel: float, tolerance: float = 1e-4) -> Alignment:
+                   distances: tuple[float, ...], kernel: float, tolerance: float = 1e-4,
+                   shares: np.ndarray | None = None) -> Alignment:
     """Gauss-Newton on weighted point-to-plane residuals with a Geman-McClure kernel (scale: `kernel`, or a third of
     the gate when wider), one iteration per gate in `distances` (m, coarse to fine), stopping early once the step is
-    below `tolerance`."""
+    below `tolerance`. With `shares` (each point's time before the stamp, in sweep periods) the sensor's vertical motion
+    over a sweep is fitted too: each point moves by its share of `lift` along the sensor's z axis."""
     source = np.asarray(source, dtype=np.float64)
     weights = np.ones(len(source)) if weights is None else np.asarray(weights, dtype=np.float64)
     transform = np.asarray(initial, dtype=np.float64).copy()
-    hessian, rmse, inliers, done = np.zeros((6, 6)), np.inf, 0, 0
+    lift = 0.0
+    hessian, rmse, inliers, done = np.zeros((6, 6) if shares is None else (7, 7)), np.inf, 0, 0
     if len(target) < MIN_CONSTRAINTS or len(source) < MIN_CONSTRAINTS:
         return Alignment(transform, np.eye(6), 0, rmse, 0)
     for gate in distances:
-        moved = source @ transform[:3, :3].T + transform[:3, 3]
+        lifted = source if shares is None else source + np.outer(shares * lift, [0.0, 0.0, 1.0])
+        moved = lifted @ transform[:3, :3].T + transform[:3, 3]
         distance, index = target.tree.query(moved, distance_upper_bound=gate)
         found = np.flatnonzero(np.isfinite(distance))
         inliers = len(found)
@@ -128,18 +134,22 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
         centre = transform[:3, 3].copy()
         arm = x - centre
         jacobian = np.hstack([n, np.cross(arm, n)])  # d residual / d (translation, rotation about the sensor)
+        if shares is not None:  # d residual / d lift: the point's share along the sensor's z axis
+            jacobian = np.hstack([jacobian, (shares.take(found) * (n @ transform[:3, 2]))[:, None]])
         weighted = (jacobian * robust[:, None]).T
         hessian = weighted @ jacobian
         gradient = weighted @ residual
         step = constrained_step(hessian, gradient, float(np.sqrt(np.mean(np.einsum("ij,ij->i", arm, arm)))))
-        about_sensor = exp_se3(step)
+        about_sensor = exp_se3(step[:6])
         about_sensor[:3, 3] += centre - about_sensor[:3, :3] @ centre  # the step moved to act about `centre`
         transform = about_sensor @ transform
+        if shares is not None:
+            lift += float(step[6])
         rmse = float(np.sqrt((robust * residual ** 2).sum() / max(robust.sum(), 1e-12)))
         done += 1
         if np.abs(step).max() < tolerance:
             break
-    return Alignment(transform, plane_covariance(hessian, rmse, inliers), inliers, rmse, done)
+    return Alignment(transform, plane_covariance(hessian, rmse, inliers)[:6, :6], inliers, rmse, done, lift)
 
 
 def steep_support(points: np.ndarray, transform: np.ndarray, target: PlaneTarget, gate: float = 0.5,
@@ -159,8 +169,10 @@ def steep_support(points: np.ndarray, transform: np.ndarray, target: PlaneTarget
 def constrained_step(hessian: np.ndarray, gradient: np.ndarray, length: float) -> np.ndarray:
     """The Gauss-Newton step -H^-1 g in the directions the residuals constrain; none along degenerate directions
     (a corridor's length, a plane's in-plane motion), so the prediction stands there. Rotations are measured as
-    the motion they cause at `length` (m), so that both kinds of direction compare."""
-    scale = np.r_[np.ones(3), np.full(3, 1.0 / max(length, 1e-6))]  # (translation, rotation * length) units
+    the motion they cause at `length` (m), so that both kinds of direction compare; parameters past the six of a
+    pose are lengths."""
+    scale = np.r_[np.ones(3), np.full(3, 1.0 / max(length, 1e-6)), np.ones(len(gradient) - 6)]  # (translation,
+    # rotation * length, any further length) units
     scaled = hessian * np.outer(scale, scale)
     values, vectors = np.linalg.eigh(scaled)
     keep = values > DEGENERATE * max(values[-1], 1e-12)
@@ -170,6 +182,6 @@ def constrained_step(hessian: np.ndarray, gradient: np.ndarray, length: float) -
 def plane_covariance(hessian: np.ndarray, rmse: float, inliers: int) -> np.ndarray:
     """Covariance sigma^2 H^-1 of a point-to-plane fit (sigma: its RMS residual); large where unconstrained."""
     if inliers < MIN_CONSTRAINTS or not np.isfinite(rmse):
-        return np.eye(6)
+        return np.eye(len(hessian))
     sigma2 = max(rmse, 1e-3) ** 2
-    return sigma2 * np.linalg.inv(hessian + 1e-9 * np.eye(6))  # degenerate directions: very uncertain
+    return sigma2 * np.linalg.inv(hessian + 1e-9 * np.eye(len(hessian)))  # degenerate directions: very uncertain
