@@ -84,15 +84,21 @@ def swept(world: np.ndarray, stamp_x: float) -> tuple[np.ndarray, np.ndarray]:
     return (world - np.c_[stamp_x + SWEEP_SPEED * times, np.zeros((len(world), 2))]).astype(np.float32), times
 
 
-def swept_pair(seed: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """Two consecutive sweeps (points and times) of a street (ground, two facades and an end wall) by a sensor driving
+def swept_stream(seed: int, sweeps: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Consecutive sweeps (points and times) of a street (ground, two facades and an end wall) by a sensor driving
     along it at SWEEP_SPEED."""
     rng = np.random.default_rng(seed)
     world = np.vstack([np.c_[rng.uniform(-30, 30, (3000, 2)), rng.normal(-1.7, 0.02, 3000)],
                        np.c_[rng.uniform(-30, 30, 1500), np.full(1500, 8.0), rng.uniform(-1.7, 3, 1500)],
                        np.c_[np.full(1500, 25.0), rng.uniform(-8, 8, 1500), rng.uniform(-1.7, 3, 1500)],
                        np.c_[rng.uniform(-30, 30, 1500), np.full(1500, -9.0), rng.uniform(-1.7, 3, 1500)]])
-    return swept(world, 0.0), swept(world, SWEEP_SPEED * SWEEP_PERIOD)
+    return [swept(world, index * SWEEP_SPEED * SWEEP_PERIOD) for index in range(sweeps)]
+
+
+def swept_pair(seed: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """Two consecutive sweeps (points and times) of a street by a sensor driving along it at SWEEP_SPEED."""
+    first, second = swept_stream(seed, 2)
+    return first, second
 
 
 class FakeTime:

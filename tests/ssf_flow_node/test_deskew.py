@@ -10,7 +10,7 @@ from ssf_common.config import build
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import make_pose
 from ssf_common.geometry.sweep import deskew, pair_times, reskew
-from support import SWEEP_PERIOD as PERIOD, SWEEP_SPEED as SPEED, swept, swept_pair
+from support import SWEEP_PERIOD as PERIOD, SWEEP_SPEED as SPEED, swept, swept_pair, swept_stream
 
 def test_a_static_wall_is_bent_by_the_sweep_and_straight_after_deskew():
     wall = np.c_[np.full(400, 15.0), np.linspace(-10, 10, 400), np.zeros(400)]
@@ -90,3 +90,22 @@ def test_deskew_is_off_without_time_and_changes_the_flow_with_it():
     truth = np.array([-SPEED * PERIOD, 0.0, 0.0], np.float32)  # constant velocity: every raw point's flow
     assert np.median(np.linalg.norm(with_time.flow - truth, axis=1)) < 0.02
     assert abs(with_time.ego[0, 3] + SPEED * PERIOD) < 0.02
+
+
+def test_a_pair_after_skipped_pairs_goes_on_at_constant_velocity():
+    """A node that cannot keep up answers the newest pair: its scan t, which no pair brought, is deskewed with the last
+    pair's motion (one estimate, as in a stream), not taken as it is (which costs a second estimate)."""
+    from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
+
+    sweeps = swept_stream(4, 4)
+    estimates = {}
+    for follows in (False, True):
+        estimator = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN))
+        spy = estimator.estimator = Answers(estimator.estimator)
+        estimator.estimate(sweeps[0][0], sweeps[1][0], None, pair_times(sweeps[0][1], sweeps[1][1], PERIOD))
+        first = len(spy.answers)  # a stream's first pair: taken as it is, then again at its own motion
+        result = estimator.estimate(sweeps[2][0], sweeps[3][0], None, pair_times(sweeps[2][1], sweeps[3][1], PERIOD),
+                                    follows)
+        estimates[follows] = len(spy.answers) - first
+        assert first == 2 and abs(result.ego[0, 3] + SPEED * PERIOD) < 0.02
+    assert estimates == {False: 2, True: 1}

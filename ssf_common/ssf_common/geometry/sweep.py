@@ -12,6 +12,7 @@ rise or fall over each sweep with the scan's pose instead (ssf_odom_node registr
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import numpy as np
@@ -82,11 +83,22 @@ def _move(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: floa
     if not len(points) or not steps.any():
         return points.astype(np.float32)
     low = int(steps.min())
-    poses = interpolate_poses(np.eye(4), motion, np.arange(low, int(steps.max()) + 1) / STEPS)
-    if back:
-        poses = invert(poses)
-    pose = poses[steps - low]
-    return (np.einsum("nij,nj->ni", pose[:, :3, :3], points) + pose[:, :3, 3]).astype(np.float32)
+    pose = _pose_table(np.asarray(motion, dtype=np.float64).tobytes(), low, int(steps.max()), back)[steps - low]
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    moved = np.empty_like(points)
+    for row in range(3):  # a 3x4 pose per point, row by row: no (N, 4, 4) gather
+        moved[:, row] = pose[:, 4 * row] * x + pose[:, 4 * row + 1] * y + pose[:, 4 * row + 2] * z + pose[:, 4 * row + 3]
+    return moved.astype(np.float32)
+
+
+@functools.lru_cache(maxsize=8)
+def _pose_table(motion: bytes, low: int, high: int, back: bool) -> np.ndarray:
+    """The poses (K, 12: the top three rows) at steps low..high of a motion given as its float64 bytes, or their
+    inverses: one sweep's table serves every scan moved with the same motion (deskewed, then carried back)."""
+    poses = interpolate_poses(np.eye(4), np.frombuffer(motion).reshape(4, 4), np.arange(low, high + 1) / STEPS)
+    table = (invert(poses) if back else poses)[:, :3, :].reshape(-1, 12).copy()
+    table.flags.writeable = False
+    return table
 
 
 __all__ = ["PairTimes", "check_time", "deskew", "pair_times", "planar", "reskew", "timed"]
