@@ -180,7 +180,9 @@ def test_a_viewer_started_with_sigint_ignored_still_stops_on_it(publisher):
     try:
         server_url(viewer)
         viewer.send_signal(signal.SIGINT)
-        assert viewer.wait(timeout=20) in (0, 130)
+        # stopped, not ignoring it: cleanly (0, or 130 while its node was being built), or, about one run in twenty on a
+        # loaded machine when the signal lands while the node is still being built, ended by the signal itself
+        assert viewer.wait(timeout=20) in (0, 130, -signal.SIGINT)
     finally:
         if viewer.poll() is None:
             viewer.kill()
