@@ -26,11 +26,13 @@ from ssf_seg_node.node import SegNode
 SCANS = 6  # scans simulated after the warm-up (the simulator adds the one that ends the last pair)
 
 
-def simulated_scans() -> tuple[list, np.ndarray]:
-    """Consecutive whole scans of a street with traffic (as the simulator publishes them), and base_link -> lidar."""
-    scenario = load_scenario("urban_200")
+def simulated_scans(rolling: bool = False) -> tuple[list, np.ndarray]:
+    """Consecutive whole scans of a street with traffic (as the simulator publishes them: each point's time where the
+    sweep takes its period), and base_link -> lidar."""
+    scenario = load_scenario("urban_200", {"lidar.rolling_shutter": rolling})
     frames = list(simulate(scenario, 5, SCANS, warmup_frames(scenario, 2.0)))
-    clouds = [xyz_to_cloud(frame.scan.points, messages.header(frame.stamp_ns, "lidar")) for frame in frames]
+    clouds = [xyz_to_cloud(frame.scan.points, messages.header(frame.stamp_ns, "lidar"),
+                           **({"time": frame.scan.time} if rolling else {})) for frame in frames]
     return clouds, invert(frames[0].base_pose) @ frames[0].pose
 
 
@@ -61,9 +63,10 @@ def graph():
     probe.destroy_node()
 
 
-def test_the_graph_and_the_chain_in_process_agree_on_replayed_scans(graph):
+@pytest.mark.parametrize("rolling", [False, True], ids=["instant", "rolling-shutter"])
+def test_the_graph_and_the_chain_in_process_agree_on_replayed_scans(graph, rolling):
     scans, tf, got, nodes = graph
-    recorded, mount = simulated_scans()
+    recorded, mount = simulated_scans(rolling)
     pairs = len(recorded) - 1
     tf.publish(messages.msg_type("tf2_msgs/msg/TFMessage")(transforms=[pose_msgs.transform_stamped_msg(
         mount, messages.stamp_ns(recorded[0].header.stamp), "base_link", recorded[0].header.frame_id)]))
@@ -76,13 +79,15 @@ def test_the_graph_and_the_chain_in_process_agree_on_replayed_scans(graph):
     chain, odometry = PerceptionChain(whole_scan_config(loop_iterations=1)), make_odometry()
     stamps = [messages.stamp_ns(scan.header.stamp) for scan in recorded]
     points = [decode_cloud(scan).xyz for scan in recorded]
+    times = [decode_cloud(scan).time for scan in recorded]
     frame = recorded[0].header.frame_id
     priors = 0
     for index in range(pairs):
         seen = chain.perceive(points[index], points[index + 1], stamp_ns=stamps[index], frame_id=frame,
-                              follows=index > 0, next_stamp_ns=stamps[index + 1])
+                              follows=index > 0, next_stamp_ns=stamps[index + 1], time1=times[index],
+                              time2=times[index + 1])
         step = odometry.step(OdomInput(stamps[index], points[index], seen.fusion.flow,
-                                       seen.fusion.segmentation.dynamic_prob, ego=seen.fusion.ego))
+                                       seen.fusion.segmentation.dynamic_prob, ego=seen.fusion.ego, time=times[index]))
         graph_result = semantic_flow_from_cloud(got[topics.SEMANTIC_FLOW][index])
         assert graph_result.stamp_ns == stamps[index]
         np.testing.assert_allclose(graph_result.segmentation.dynamic_prob, seen.fusion.segmentation.dynamic_prob,
