@@ -90,9 +90,9 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
     assert sim.parameters["episodes"] == 1
     back_to_back = next(node for node in bench_graph_spec("urban_200", 0).nodes if node.executable == "sim_bridge")
     assert back_to_back.parameters["episodes"] == 0
-    assert sim.parameters["lidar.rolling_shutter"] is True  # measured on the sweeps `ssf demo` casts
-    instant = bench_graph_spec("urban_200", 1, per_node_parameters(["sim_bridge:lidar.rolling_shutter:=false"]))
-    assert next(node for node in instant.nodes if node.executable == "sim_bridge").parameters["lidar.rolling_shutter"] is False
+    assert sim.parameters["lidar.rolling_shutter"] is False  # measured on the sweeps `ssf demo` casts
+    rolling = bench_graph_spec("urban_200", 1, per_node_parameters(["sim_bridge:lidar.rolling_shutter:=true"]))
+    assert next(node for node in rolling.nodes if node.executable == "sim_bridge").parameters["lidar.rolling_shutter"] is True
 
 
 def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
