@@ -72,7 +72,8 @@ class GraphBench:
 
 
 class Probe:
-    """Listens to the graph: wall time of each /clock stamp, scans, odometry, commands, diagnostics."""
+    """Listens to the graph: wall time of each /clock stamp, scans, perception's answers (odometry, obstacles),
+    commands, diagnostics."""
 
     def __init__(self, spin: bool = True) -> None:
         from ssf_common.middleware import QOS_DEFAULT, QOS_SENSOR_DATA, Node
@@ -81,7 +82,8 @@ class Probe:
         self.lock = threading.Lock()
         self.clock_wall: dict[int, list[float]] = collections.defaultdict(list)  # a restarted clock shows a stamp again
         self.scans: list[tuple[float, int]] = []
-        self.odometry: list[tuple[float, int]] = []
+        self.answers: list[tuple[float, int]] = []  # when each /odom or /ssf/obstacles came, and the scan it answers
+        self.pairs: dict[int, int] = {}  # the flow's pairs (/ssf/ego_motion): first scan's stamp -> second's
         self.odometry_poses: list[tuple[int, np.ndarray]] = []  # the first drive's /odom: stamp, odom <- base_link
         self.truth_poses: dict[int, np.ndarray] = {}  # the first drive's true poses: stamp -> world <- base_link
         self.truth_last = -1
@@ -96,6 +98,10 @@ class Probe:
         self.node.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA,
                                       raw=True)
         self.node.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
+        self.node.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles,
+                                      QOS_DEFAULT, raw=True)
+        self.node.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion,
+                                      QOS_DEFAULT)
         self.node.create_subscription("nav_msgs/msg/Odometry", topics.GT_ODOM, self.on_truth, QOS_DEFAULT)
         self.node.create_subscription("geometry_msgs/msg/Twist", topics.CMD_VEL, self.on_command, QOS_DEFAULT)
         self.node.create_subscription("diagnostic_msgs/msg/DiagnosticArray", topics.DIAGNOSTICS, self.on_diagnostics,
@@ -133,14 +139,23 @@ class Probe:
         return walls[index] if index >= 0 else None
 
     def on_scan(self, cdr: bytes) -> None:
-        sec, nanosec = np.frombuffer(bytes(cdr[4:12]), dtype="<i4", count=2)  # CDR header, then std_msgs/Header
         with self.lock:
-            self.scans.append((time.monotonic(), int(sec) * 1_000_000_000 + int(np.uint32(nanosec))))
+            self.scans.append((time.monotonic(), header_stamp_ns(cdr)))
+
+    def on_obstacles(self, cdr: bytes) -> None:
+        """Obstacles of scan t, found on the pair (t, t+1) (its flow's ego motion came first), answer scan t+1."""
+        stamp = header_stamp_ns(cdr)
+        with self.lock:
+            self.answers.append((time.monotonic(), self.pairs.get(stamp, stamp)))
+
+    def on_ego_motion(self, msg: Any) -> None:
+        with self.lock:
+            self.pairs[messages.stamp_ns(msg.header.stamp)] = messages.stamp_ns(msg.next_stamp)
 
     def on_odometry(self, msg: Any) -> None:
         stamp = messages.stamp_ns(msg.header.stamp)
         with self.lock:
-            self.odometry.append((time.monotonic(), stamp))
+            self.answers.append((time.monotonic(), stamp))
             self.first_drive["odom"] &= not self.odometry_poses or stamp > self.odometry_poses[-1][0]
             if self.first_drive["odom"]:
                 self.odometry_poses.append((stamp, pose_msgs.matrix_from_pose(msg.pose.pose)))
@@ -243,19 +258,26 @@ def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, fl
                 continue
 
 
+def header_stamp_ns(cdr: bytes) -> int:
+    """The header stamp (ns) of a message that starts with a std_msgs/Header, read from its CDR bytes."""
+    sec, nanosec = np.frombuffer(bytes(cdr[4:12]), dtype="<i4", count=2)  # CDR encapsulation, then the header's stamp
+    return int(sec) * 1_000_000_000 + int(np.uint32(nanosec))
+
+
 def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
-    """Scan stamp -> the /cmd_vel that answers it: each command answers the newest odometry before it, whose stamp is
-    the scan's; the scan's time is when /clock showed that stamp."""
+    """Scan stamp -> the /cmd_vel that answers it: each command answers the scan of the perception answer that came
+    last before it (/odom of the scan, or the obstacles of the pair that ends with it), the first command after it;
+    the scan's time is when /clock showed that stamp."""
     answered: set[tuple[int, float]] = set()  # (stamp, when /clock showed it): stamps repeat when drives restart
     latency: list[float] = []
-    odometry = sorted(probe.odometry)
+    answers = sorted(probe.answers)
     index = -1
     for wall in sorted(probe.commands):
-        while index + 1 < len(odometry) and odometry[index + 1][0] <= wall:
+        while index + 1 < len(answers) and answers[index + 1][0] <= wall:
             index += 1
         if index < 0 or wall < since:
             continue
-        arrived, stamp = odometry[index]
+        arrived, stamp = answers[index]
         shown = probe.shown_at(stamp, arrived)
         if shown is None or (stamp, shown) in answered:
             continue

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import ctypes
+import functools
 import math
 import os
 import signal
@@ -59,6 +60,8 @@ class NodeSpec(Section):
     required: bool = False  # when it exits for good, the whole graph stops
     environment: dict[str, str] = Field(default_factory=dict)
     ros_args: bool = True  # node executables take --ros-args; tools such as `ssf record` do not
+    nice: int = Field(default=0, ge=0, le=19, description="scheduling niceness: a node off the critical path (one whose "
+                      "answer no command waits for) yields the cores to those on it while both want them")
 
 
 class GraphSpec(Section):
@@ -141,9 +144,12 @@ def command_line(node: NodeSpec, global_parameters: dict[str, Any]) -> list[str]
     return argv + (["--ros-args", *ros_args] if ros_args else [])
 
 
-def _start_child() -> None:
-    """In the child, before exec: SIGTERM if the launcher dies (no orphans); SIGINT held until the bootstrap."""
+def _start_child(nice: int = 0) -> None:
+    """In the child, before exec: SIGTERM if the launcher dies (no orphans); SIGINT held until the bootstrap; its
+    niceness."""
     signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    if nice:
+        os.nice(nice)
     try:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(_PR_SET_PDEATHSIG, signal.SIGTERM)
     except OSError:
@@ -197,7 +203,7 @@ class Launcher:
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
             env=env,
-            preexec_fn=_start_child,
+            preexec_fn=functools.partial(_start_child, managed.spec.nice),
             process_group=0,  # a Ctrl-C in the terminal reaches the launcher only; it stops the nodes in order
         )
         self._say(managed.label, f"started (pid {managed.process.pid})")

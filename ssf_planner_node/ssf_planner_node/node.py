@@ -1,7 +1,11 @@
 """ssf_planner_node: /ssf/obstacles + /odom + a route (A -> B in the odometry frame) -> /cmd_vel and /ssf/plan.
 
-One plan per odometry message (the simulator's 10 Hz), with the newest obstacles moved into the odometry frame by
-the pose at their stamp, the odometry carried forward to now by the commands sent since. The fail safe (the core's
+One plan per scan (the simulator's 10 Hz), as soon as its first answer comes: the obstacles of the pair that ends
+with it (the fusion node sends them before the odometry has the scan's pose), moved into the odometry frame by the pose
+at their stamp, and the scan's pose from the odometry of the one before and the flow's ego motion over the pair (or the
+newest odometry), carried forward to now by the commands sent since (`plan_on: odometry`: one plan per odometry). While
+the clock runs, a control period without a plan plans again from the newest inputs, so a scan the chain drops does not
+skip a command. The fail safe (the core's
 `failsafe`): when odometry or obstacles are older than two sensor periods by the node's clock, or silent for
 `failsafe.silent_after_s` by the steady clock, every tick and a watchdog on both clocks brake, each command slower than
 the last, down to zero, said on /ssf/planner_state (reason stale_odometry, stale_obstacles, deadline, ...) and in one
@@ -17,23 +21,25 @@ from typing import Any
 import numpy as np
 
 from ssf_common import messages, pose_msgs, topics
-from ssf_common.conversions import obstacles_from_cdr, odometry_from_msg, plan_from_msg, plan_to_msg
+from ssf_common.conversions import (ego_motion_from_msg, obstacles_from_cdr, odometry_from_msg, plan_from_msg,
+                                    plan_to_msg)
 from ssf_common.diagnostics import ConditionLog, Level, StageStats, advertise
 from ssf_common.errors import ConfigError, MessageError, SsfError
 from ssf_common.markers import MarkerSet
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node, dropped_text, run
 from ssf_common.geometry.se3 import invert, yaw_matrix
-from ssf_common.records import Obstacles, OdometryEstimate
+from ssf_common.records import EgoMotion, Obstacles, OdometryEstimate
 from ssf_common.stamps import StampSequence
-from ssf_planner_node.core.config import PlannerConfig
+from ssf_planner_node.core.config import PlannerConfig, PlanTrigger
 from ssf_planner_node.core.failsafe import InputWatch, Source, Staleness, implausible_emptiness
 from ssf_planner_node.core.frames import (PoseHistory, carried_forward, frame_bridge, obstacles_in_route_frame,
-                                         state_of)
+                                         odometry_after, state_of)
 from ssf_planner_node.core.models import Command
 from ssf_planner_node.core.planner import PlanStep, RdaPlanner, TickStatus, VehicleState
 from ssf_planner_node.core.route import Route
 
 BASE_FRAME = "base_link"
+EGO_MOTIONS_KEPT = 10
 CLOCK_AGREEMENT_S = 10.0  # stamps this close behind the clock are on it (a bag replayed without /clock is not)
 
 
@@ -61,6 +67,7 @@ class PlannerNode(Node):
         self.odometry_position = np.zeros(2)  # ... where it puts the car in its own frame (before any anchor)
         self.inputs = InputWatch(self.config.failsafe, self.config.control_period)
         self.sent: deque[tuple[int, Command]] = deque(maxlen=200)  # (clock stamp, command) for latency compensation
+        self.sent_steady_ns: int | None = None  # when the last command went out, by the steady clock
         self.sequence = StampSequence()
         self.cmd_pub = self.create_publisher("geometry_msgs/msg/Twist", topics.CMD_VEL, QOS_DEFAULT)
         self.plan_pub = self.create_publisher("nav_msgs/msg/Path", topics.PLAN, QOS_DEFAULT)
@@ -71,6 +78,8 @@ class PlannerNode(Node):
         diagnostics = advertise(self, self.stats, refresh=self._refresh, inputs=(topics.ODOM, topics.OBSTACLES))
         self.log = ConditionLog(self.get_logger(), diagnostics.repeat_s, diagnostics.lasting_s)
         self.waiting = False  # the newest odometry came while the obstacles were stale: it plans when they come
+        self.planned_ns = -1  # the newest scan a plan answered
+        self.egos: dict[int, EgoMotion] = {}  # the flow's ego motion of the last few pairs, by their first scan
         self.create_timer(self.config.control_period, self.watchdog)  # behaviour: the node's (simulated) clock ...
         self.create_timer(self.config.control_period / 2, lambda: self.watchdog(steady=True),  # ... and liveness
                           clock=self.get_steady_clock())
@@ -85,6 +94,8 @@ class PlannerNode(Node):
         self.create_subscription("nav_msgs/msg/Odometry", topics.ODOM, self.on_odometry, QOS_DEFAULT)
         self.create_subscription("ssf_interfaces/msg/ObstacleArray", topics.OBSTACLES, self.on_obstacles, QOS_DEFAULT,
                                  raw=True)
+        if self.config.plan_on is PlanTrigger.SCAN:
+            self.create_subscription("ssf_interfaces/msg/EgoMotion", topics.EGO_MOTION, self.on_ego_motion, QOS_DEFAULT)
 
     @property
     def said(self) -> set[str]:
@@ -138,8 +149,32 @@ class PlannerNode(Node):
         self.log.update("bad obstacles", False, over=f"{topics.OBSTACLES} good again")
         if self.inputs.take(Source.OBSTACLES, obstacles.stamp_ns, *self._clocks()):
             self.obstacles = obstacles
-            if self.waiting and self.odometry is not None:
+            if self.odometry is None:
+                return
+            ahead = self._odometry_after(obstacles.stamp_ns)
+            if ahead is not None and ahead.stamp_ns > self.planned_ns:
+                self._tick(ahead)  # the pair's second scan, planned before its odometry comes
+            elif self.waiting or (self.config.plan_on is PlanTrigger.SCAN and obstacles.stamp_ns > self.planned_ns):
                 self._tick(self.odometry)
+
+    def on_ego_motion(self, msg: Any) -> None:
+        """Keep the flow's ego motion of each pair for the pose of its second scan (the newest few)."""
+        ego = self.decoded(ego_motion_from_msg, msg, topics.EGO_MOTION)
+        if ego is not None:
+            self.egos[ego.stamp_ns] = ego
+            for stamp in sorted(self.egos)[:-EGO_MOTIONS_KEPT]:
+                del self.egos[stamp]
+
+    def _odometry_after(self, stamp_ns: int) -> OdometryEstimate | None:
+        """The odometry of the scan after `stamp_ns` from the newest odometry, when it is that scan's, and the flow's
+        ego motion over the pair (None without either, or without the sensor's mount)."""
+        ego = self.egos.get(stamp_ns)
+        if self.config.plan_on is not PlanTrigger.SCAN or ego is None or self.odometry is None:
+            return None
+        mount = self.mounts.get(ego.frame_id)
+        if mount is None or self.odometry.stamp_ns != stamp_ns:
+            return None
+        return odometry_after(self.odometry, ego, mount)
 
     def _ego_in(self, frame_id: str) -> np.ndarray:
         """Where the car is (x, y) in a frame obstacles come in: its origin for the car's own frames, else where the
@@ -157,6 +192,8 @@ class PlannerNode(Node):
             self.sent.clear()
             self.anchor = self.bridge = None
             self.odometry = None
+            self.planned_ns = -1
+            self.egos.clear()
         if not self.inputs.take(Source.ODOMETRY, odometry.stamp_ns, *self._clocks()):
             return  # the same stamp again, or a late one: nothing new to plan from
         self.odometry_position = np.array(odometry.pose[:2, 3], dtype=np.float64)
@@ -165,7 +202,8 @@ class PlannerNode(Node):
         odometry = self._bridged(odometry)
         self.poses.add(odometry.stamp_ns, odometry.pose)
         self.odometry = odometry
-        self._tick(odometry)
+        if self.config.plan_on is PlanTrigger.ODOMETRY or odometry.stamp_ns > self.planned_ns:
+            self._tick(odometry)  # (planning on scans, its obstacles usually came first and were planned on)
 
     @property
     def patience_s(self) -> float:
@@ -187,6 +225,8 @@ class PlannerNode(Node):
                         f"the clock: planned from it carried forward, speed capped at {self.config.stale_speed:g} m/s",
                         over="odometry on time again")
         step = self.planner.step(state, obstacles, stale=capped or late)
+        answered = max(odometry.stamp_ns, self.obstacles.stamp_ns if self.obstacles is not None else -1)
+        self.planned_ns = max(self.planned_ns, answered)
         if step.status is TickStatus.BRAKE and step.reason.startswith("deadline"):
             self.inputs.braked(clock_ns, steady_ns)
             self._say_braking(step.reason)
@@ -197,7 +237,7 @@ class PlannerNode(Node):
             self.stats.count("obstacles_dropped", step.dropped)
         self.log.update("obstacles dropped", step.dropped > 0, f"{step.dropped} obstacles dropped: only the "
                         f"{self.config.obstacles.max_considered} nearest are considered", over="no obstacles dropped")
-        self._publish_step(step, odometry.stamp_ns)
+        self._publish_step(step, answered)
         if step.status in (TickStatus.SHIFTED, TickStatus.BRAKE):
             self.get_logger().debug(f"fallback ({step.status.value}): {step.reason}")
 
@@ -219,8 +259,8 @@ class PlannerNode(Node):
         self.stats.report("braking", Level.WARN if key else Level.OK, f"braking: {reason}")
 
     def _publish_step(self, step: PlanStep, stamp_ns: int) -> None:
-        """A tick's command, plan, markers and /ssf/planner_state (stamped with its odometry, or the clock for a
-        brake the watchdog decided)."""
+        """A tick's command, plan, markers and /ssf/planner_state (stamped with the newest scan it answers, or the
+        clock for a brake the watchdog decided)."""
         self._publish(step.command)
         self.plan_pub.publish(plan_to_msg(step.plan))
         if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
@@ -335,7 +375,9 @@ class PlannerNode(Node):
         """Every control period of the node's clock and every half of one of the steady clock (whatever the node's
         clock does: standing still in lockstep or with a dead simulator, gone back): while an input is stale, the next
         braking command. The steady watchdog judges by the node's clock only while it runs with the steady one (in
-        lockstep a brake would release a step and age the inputs itself); else it brakes for silent inputs alone."""
+        lockstep a brake would release a step and age the inputs itself); else it brakes for silent inputs alone.
+        While the clock runs and the inputs are fresh, two control periods of steady time with no command plan again
+        (a scan the chain dropped; in lockstep the clock waits for the command instead)."""
         if self.odometry is None:  # nothing commanded yet: the car stands, or its own timeout stops it
             return
         clock_ns, steady_ns = self._clocks()
@@ -343,10 +385,19 @@ class PlannerNode(Node):
         stale = self._stale(clock_ns, steady_ns) if not steady or running else self.inputs.silent(steady_ns)
         if stale and self.inputs.brake_due(clock_ns, steady_ns):
             self._publish_step(self._blind_brake(self.odometry, stale), clock_ns)
+        elif not stale and steady and running and self._command_overdue(steady_ns):
+            self._tick(self.odometry)
+
+    def _command_overdue(self, steady_ns: int) -> bool:
+        """Whether two control periods of steady time went by since the last command (one between scans' answers is
+        their jitter), with odometry on the clock's time line (to be carried forward by it)."""
+        return (self.sent_steady_ns is not None and steady_ns - self.sent_steady_ns >= 2 * self.config.control_period * 1e9
+                and self._on_timeline(self.odometry.stamp_ns))
 
     def _publish(self, command: Command) -> None:
         self.last_command = command
         self.sent.append((self.get_clock().now_ns(), command))
+        self.sent_steady_ns = self.get_steady_clock().now_ns()
         vector = messages.msg_type("geometry_msgs/msg/Vector3")
         self.cmd_pub.publish(messages.msg_type("geometry_msgs/msg/Twist")(
             linear=vector(x=float(command.linear), y=0.0, z=0.0), angular=vector(x=0.0, y=0.0, z=float(command.angular))))

@@ -107,9 +107,9 @@ class FusionNode(Node):
         self._publish_state(finish.status)
         if result.ego is None:  # a flow whose ego motion never came (not from our flow node): the core fits one
             self.stats.count("results_without_ego_motion")
-        self.result_pub.publish(semantic_flow_to_cloud(result))  # first: the odometry works while the obstacles are made
         obstacles = result_obstacles(result, self.config.obstacles, self.config.dt).all()
-        self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # (they take less time than the odometry's step)
+        self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # first: the planner plans the scan on them
+        self.result_pub.publish(semantic_flow_to_cloud(result))  # the odometry's pose serves the next plan
         radius = self.config.fusion.prior_radius  # last: the flow node needs it only when the next scan comes
         self.prior_pub.publish(prior_to_cloud(prior_source(result.stamp_ns, result.frame_id, result.points,
                                                            result.flow, result.segmentation.dynamic_prob, radius)))

@@ -9,7 +9,9 @@ import pytest
 
 from ssf_bringup.bench_graph import GraphBench, Probe, bench_graph_spec, format_bench, latencies_ms, node_rows
 from ssf_common import messages
+from ssf_common.conversions import ego_motion_to_msg, obstacles_to_msg
 from ssf_common.diagnostics import StageStats, read_status
+from ssf_common.records import EgoMotion, Obstacles
 
 
 class ScriptedProbe:
@@ -19,7 +21,8 @@ class ScriptedProbe:
         self.lock = threading.Lock()
         self.clock_wall = {100: [10.0], 200: [10.1], 300: [10.2], 400: [10.3]}
         self.scans = [(10.0, 100), (10.1, 200), (10.2, 300), (10.3, 400)]
-        self.odometry = [(10.25, 100), (10.45, 300)]  # scan 200 and 400 never answered
+        self.answers = [(10.25, 100), (10.45, 300)]  # odometry or obstacles: scan 200 and 400 never answered
+        self.pairs: dict[int, int] = {}
         self.driven: list[tuple[float, float]] = []
         self.commands = [10.27, 10.29, 10.5]  # the second command answers scan 100 again: counted once
         self.diagnostics = {"ssf_flow_node": {"scan_answered": 3, "hint_answered": 2, "scan_dropped": 1,
@@ -40,11 +43,26 @@ def test_latency_is_measured_from_the_scans_clock_time_to_the_answering_command(
     assert latencies_ms(ScriptedProbe(), since=10.4)[1] == {(300, 10.2)}  # the warm-up is left out
 
 
+def test_a_command_answers_the_scan_whose_obstacles_came_before_it_though_its_odometry_came_after():
+    """The planner plans a scan on the obstacles of the pair that ends with it (stamped with the pair's first scan):
+    the odometry of that scan comes after the command."""
+    probe = ScriptedProbe()
+    Probe.on_ego_motion(probe, ego_motion_to_msg(EgoMotion(100, 200, "lidar", np.eye(4))))  # the flow's pair
+    obstacles = obstacles_to_msg(Obstacles.empty(100, "base_link"))
+    Probe.on_obstacles(probe, messages.serialize(obstacles, "ssf_interfaces/msg/ObstacleArray"))
+    assert probe.answers[-1][1] == 200  # scan 100's obstacles answer scan 200
+    probe.answers[-1] = (10.28, 200)  # they came at 10.28
+    probe.answers.sort()
+    latency, answered = latencies_ms(probe, since=0.0)
+    assert answered == {(100, 10.0), (200, 10.1), (300, 10.2)}
+    assert latency == pytest.approx([270.0, 190.0, 300.0])
+
+
 def test_a_restarted_clock_is_measured_from_the_stamps_latest_showing():
     """Drives back to back restart the clock: stamp 100 of the second drive is answered 0.2 s after it was shown."""
     probe = ScriptedProbe()
     probe.clock_wall[100].append(50.0)
-    probe.odometry.append((50.15, 100))
+    probe.answers.append((50.15, 100))
     probe.commands.append(50.2)
     latency, answered = latencies_ms(probe, since=0.0)
     assert answered == {(100, 10.0), (300, 10.2), (100, 50.0)}
@@ -157,14 +175,14 @@ def test_odometry_is_scored_against_the_truth_of_the_first_drive():
     assert odometry_error([], truth) is None
 
     probe = ScriptedProbe()  # the probe keeps the first drive's poses: stamps going back end it
-    probe.odometry, probe.odometry_poses, probe.truth_poses = [], [], {}
+    probe.answers, probe.odometry_poses, probe.truth_poses = [], [], {}
     probe.truth_last, probe.first_drive = -1, {"odom": True, "truth": True}
     for stamp in (100, 200, 100, 300):
         estimate = OdometryEstimate(stamp, make_pose(stamp * 0.01, 0.0, 0.0), np.eye(6))
         Probe.on_odometry(probe, odometry_to_msg(estimate))
         Probe.on_truth(probe, odometry_to_msg(estimate))
     assert [stamp for stamp, _ in probe.odometry_poses] == [100, 200] and sorted(probe.truth_poses) == [100, 200]
-    assert len(probe.odometry) == 4  # latency still counts every answer
+    assert len(probe.answers) == 4  # latency still counts every answer
 
 
 def test_a_short_bench_graph_reports_cpu_per_scan_of_every_node(tmp_path):

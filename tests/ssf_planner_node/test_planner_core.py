@@ -265,6 +265,25 @@ def test_pose_history_interpolates_across_skipped_scans():
     assert poses.at(1_000_000_000) is None  # 1.6 s without odometry: nothing to bridge
 
 
+def test_the_odometry_of_a_pairs_second_scan_follows_from_the_flows_ego_motion_through_the_mount():
+    """The planner plans a scan before its odometry comes: the pose of the first scan moved by the sensor's motion over
+    the pair, seen from base_link through the sensor's mount; speed and yaw rate from that step."""
+    from ssf_common.geometry.se3 import invert, make_pose
+    from ssf_common.records import EgoMotion, OdometryEstimate
+    from ssf_planner_node.core.frames import odometry_after
+
+    start = make_pose(30.0, -5.0, 0.0, yaw=0.7)
+    driven = make_pose(0.8, 0.02, 0.0, yaw=0.04)  # base_link over 0.1 s: 8 m/s, 0.4 rad/s
+    mount = make_pose(1.2, 0.0, 1.9, yaw=0.02)  # base_link <- lidar
+    sensor_moved = invert(mount) @ driven @ mount  # the lidar's pose at t+1 in its frame at t
+    ego = EgoMotion(1_000_000_000, 1_100_000_000, "lidar", invert(sensor_moved))  # scan-t points -> t+1's frame
+    before = OdometryEstimate(1_000_000_000, start, np.eye(6) * 1e-3, twist=np.array([7.0, 0, 0, 0, 0, 0.3]))
+    after = odometry_after(before, ego, mount)
+    assert after.stamp_ns == 1_100_000_000 and after.frame_id == before.frame_id
+    assert np.allclose(after.pose, start @ driven, atol=1e-12)
+    assert after.twist[0] == pytest.approx(8.0) and after.twist[5] == pytest.approx(0.4)
+
+
 def test_a_car_already_closer_than_the_safety_distance_drives_off_without_coming_closer():
     # a car stopped 0.02 m behind the bumper: with a hard bound of 0.1 m from the first step on, every plan would be
     # infeasible (from rest the car gains 0.06 m in the first 0.2 s step), so it would brake there for good

@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from ssf_common import messages
-from ssf_common.conversions import obstacles_to_msg, odometry_to_msg, plan_to_msg
+from ssf_common.conversions import ego_motion_to_msg, obstacles_to_msg, odometry_to_msg, plan_to_msg
 from ssf_common.middleware import QOS_DEFAULT, QOS_LATCHED, Node
-from ssf_common.records import Obstacles, OdometryEstimate, Plan
+from ssf_common.geometry.se3 import invert, make_pose
+from ssf_common.records import EgoMotion, Obstacles, OdometryEstimate, Plan
 from ssf_eval.nav.loop import ClosedLoop, TrialSpec
 from ssf_planner_node.core.failsafe import Source
 from ssf_planner_node.core.models import Command
@@ -33,6 +34,7 @@ def route_message(route) -> object:
 
 
 states: list = []  # /ssf/planner_state messages of the running test
+plans: list = []  # /ssf/plan messages of the running test
 
 
 def stamps(messages: list) -> list[int]:
@@ -44,6 +46,7 @@ def stamps(messages: list) -> list[int]:
 def graph():
     started: list = []
     states.clear()
+    plans.clear()
 
     def start(*parameters: str):
         # the tests below that are not about the fail safe feed the node at the pace of a test, not of a sensor
@@ -57,11 +60,12 @@ def graph():
         commands: list = []
         probe.create_subscription("geometry_msgs/msg/Twist", "/cmd_vel", commands.append)
         probe.create_subscription("ssf_interfaces/msg/PlannerState", "/ssf/planner_state", states.append)
-        probe.create_subscription("nav_msgs/msg/Path", "/ssf/plan", lambda _msg: None)
+        probe.create_subscription("nav_msgs/msg/Path", "/ssf/plan", plans.append)
         probe.spin_in_thread()
         publishers = {name: probe.create_publisher(kind, topic, qos) for name, kind, topic, qos in (
             ("odom", "nav_msgs/msg/Odometry", "/odom", QOS_DEFAULT),
             ("obstacles", "ssf_interfaces/msg/ObstacleArray", "/ssf/obstacles", QOS_DEFAULT),
+            ("ego", "ssf_interfaces/msg/EgoMotion", "/ssf/ego_motion", QOS_DEFAULT),
             ("route", "nav_msgs/msg/Path", "/sim/route", QOS_LATCHED))}
         started.extend([node, probe])
         assert wait_until(lambda: all(publishers[name].get_subscription_count() > 0 for name in ("odom", "obstacles")))
@@ -79,7 +83,8 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
     ticks = [loop.tick() for _ in range(6)]
     assert any(len(tick.obstacles) for tick in ticks) and ticks[-1].command.linear > 0.5
     corridor = loop.planner.config
-    node, publishers, commands = graph("solver.deadline_ms:=0.0", f"corridor_left:={corridor.corridor_left}",
+    node, publishers, commands = graph("plan_on:=odometry", "solver.deadline_ms:=0.0",
+                                       f"corridor_left:={corridor.corridor_left}",
                                        f"corridor_right:={corridor.corridor_right}",
                                        f"passing.offset:={corridor.passing.offset}")
     publishers["route"].publish(route_message(loop.planner.route))
@@ -103,6 +108,59 @@ def test_node_gives_the_in_process_loop_commands_for_replayed_obstacles_and_odom
     assert all(state.status == "solved" and state.solve_ms > 0 and state.rounds >= 1 for state in states), [(s.status, s.solve_ms, s.rounds) for s in states]
     assert sorted(set(stamps(states))) == [tick.state.stamp_ns for tick in ticks]  # replans keep their odometry's stamp
     assert states[-1].fallbacks == 0 and all(state.clearance == -1.0 or state.clearance > 0 for state in states)
+
+
+def test_each_scan_is_planned_on_its_first_answer_and_two_control_periods_without_one_plan_again(graph):
+    """Planning on scans (the default), a scan's obstacles plan at once from the newest odometry carried forward: the
+    odometry of that scan, coming after them, plans nothing new (it is off the critical path), and an odometry whose
+    obstacles have not come plans itself. While the clock runs, two control periods with no plan plan again from the
+    newest inputs (a scan the chain dropped)."""
+    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 500.0, 0.0]", "control_period:=1.0")
+    now = node.get_clock().now_ns()
+    scans = [now - 300_000_000, now - 200_000_000, now - 100_000_000]
+
+    def send_odometry(stamp: int) -> None:
+        seconds = (stamp - scans[0]) * 1e-9
+        publishers["odom"].publish(odometry_to_msg(OdometryEstimate(
+            stamp, make_pose(5.0 * seconds), np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]), frame_id="odom")))
+        assert wait_until(lambda: node.odometry is not None and node.odometry.stamp_ns == stamp)
+
+    send_odometry(scans[0])  # an odometry first (no obstacles yet): no plan while they are missing
+    publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(scans[0], "odom")))
+    assert wait_until(lambda: stamps(states) == scans[:1])  # its obstacles come: the scan is planned on
+    publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(scans[1], "odom")))
+    assert wait_until(lambda: stamps(states) == scans[:2])  # the next scan's obstacles plan at once ...
+    assert node.odometry.stamp_ns == scans[0]  # ... from the odometry before it
+    send_odometry(scans[1])  # its own odometry afterwards: nothing new to answer
+    send_odometry(scans[2])  # an odometry ahead of its obstacles plans
+    assert wait_until(lambda: stamps(states) == scans)
+    assert len(commands) == 3 and node.planner.stats.total == 3
+    assert wait_until(lambda: len(stamps(states)) == 4, timeout_s=5.0)  # two control periods (2 s) pass: planned again
+    assert stamps(states)[-1] == scans[2] and all(state.status != "brake" for state in states)
+
+
+def test_a_pairs_obstacles_plan_its_second_scan_from_the_flows_ego_motion_before_its_odometry_comes(graph):
+    """The obstacles of the pair (t, t+1) come before the odometry of t+1: the planner plans scan t+1 at once, its
+    pose the odometry of t moved by the flow's ego motion over the pair (through the lidar's mount)."""
+    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 500.0, 0.0]")
+    assert wait_until(lambda: publishers["ego"].get_subscription_count() > 0)
+    node.mounts["lidar"] = make_pose(1.2, 0.0, 1.9)
+    now = node.get_clock().now_ns()
+    before, first, second = now - 300_000_000, now - 200_000_000, now - 100_000_000
+    publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(before, "lidar")))
+    assert wait_until(lambda: node.obstacles is not None)
+    publishers["odom"].publish(odometry_to_msg(OdometryEstimate(
+        first, make_pose(10.0, 0.0, 0.0), np.eye(6), twist=np.array([5.0, 0, 0, 0, 0, 0.0]), frame_id="odom")))
+    assert wait_until(lambda: stamps(states) == [first])
+    moved = make_pose(3.0, 0.0, 0.0)  # the lidar 3 m on over the pair (far more than the odometry's speed says)
+    publishers["ego"].publish(ego_motion_to_msg(EgoMotion(first, second, "lidar", invert(moved))))
+    assert wait_until(lambda: first in node.egos)
+    publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(first, "lidar")))
+    assert wait_until(lambda: stamps(states) == [first, second])  # scan t+1 planned ...
+    assert node.odometry.stamp_ns == first  # ... before its odometry came
+    assert wait_until(lambda: len(plans) == 2)
+    assert plans[-1].poses[0].pose.position.x > 12.9  # from 13 m (carried forward from t+1), not 10 m
+    assert len(commands) == 2
 
 
 def test_stale_obstacles_and_then_stale_odometry_brake_every_tick_down_to_zero_each_said_once(graph, capfd):
@@ -222,9 +280,9 @@ def test_a_bad_route_parameter_is_a_config_error():
 
 
 def test_world_frame_odometry_is_anchored_at_its_first_pose(graph):
-    from ssf_common.geometry.se3 import make_pose
 
-    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]", "anchor_first_odometry:=true")
+    node, publishers, commands = graph("plan_on:=odometry", "route_waypoints:=[0.0, 0.0, 100.0, 0.0]",
+                                       "anchor_first_odometry:=true")
     start = make_pose(250.0, -40.0, 3.0, yaw=2.0)  # where the ego stands in the world
     for index in range(3):
         ahead = start @ make_pose(0.5 * index)
@@ -243,9 +301,9 @@ def test_world_frame_odometry_is_anchored_at_its_first_pose(graph):
 def test_a_restarted_stream_anchors_again_and_forgets_the_commands_sent(graph):
     """Stamps jumping back (the simulator's next drive) start over: the new first pose is the origin, and commands sent
     in the last drive no longer carry the pose forward."""
-    from ssf_common.geometry.se3 import make_pose
 
-    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 100.0, 0.0]", "anchor_first_odometry:=true")
+    node, publishers, commands = graph("plan_on:=odometry", "route_waypoints:=[0.0, 0.0, 100.0, 0.0]",
+                                       "anchor_first_odometry:=true")
 
     def drive(stamps, start):
         for count, stamp in enumerate(stamps, start=len(commands) + 1):
@@ -337,9 +395,8 @@ def test_odometry_later_than_the_compensated_latency_is_still_carried_forward_an
 def test_a_restarted_odometry_node_keeps_the_routes_frame(graph, capfd):
     """A restarted odometry node starts its frame where the car stands: planning on would follow the route from the
     wrong place. The first pose of the new frame is placed where the commands since the last one drove the car."""
-    from ssf_common.geometry.se3 import make_pose
 
-    node, publishers, commands = graph("route_waypoints:=[0.0, 0.0, 500.0, 0.0]")
+    node, publishers, commands = graph("plan_on:=odometry", "route_waypoints:=[0.0, 0.0, 500.0, 0.0]")
     for index, stamp in enumerate((0, 100_000_000)):
         publishers["obstacles"].publish(obstacles_to_msg(Obstacles.empty(stamp, "odom")))
         assert wait_until(lambda: node.obstacles is not None and node.obstacles.stamp_ns == stamp)

@@ -17,6 +17,14 @@ class Model(str, Enum):
     BICYCLE = "bicycle"  # controls: acceleration, front-wheel steering angle (Ackermann)
 
 
+class PlanTrigger(str, Enum):
+    """Which message starts a plan."""
+
+    SCAN = "scan"  # each scan's first answer (its obstacles, or its odometry if that comes first): the odometry off
+    # the critical path; the pose is the newest odometry carried forward by the commands sent since
+    ODOMETRY = "odometry"  # each /odom, with the newest obstacles (a replay's order: the same commands as the loop)
+
+
 class VehicleConfig(Section):
     """Footprint and limits of the ego vehicle (the simulator's defaults)."""
 
@@ -130,7 +138,11 @@ class PlannerConfig(Section):
     model: Model = Model.UNICYCLE
     horizon: int = Field(10, ge=2, le=60, description="steps in the horizon")
     dt: float = Field(0.2, gt=0.0, le=1.0, description="seconds per horizon step")
-    control_period: float = Field(0.1, gt=0.0, le=1.0, description="seconds a command is applied (the tick period)")
+    control_period: float = Field(0.1, gt=0.0, le=1.0, description="seconds a command is applied (the tick period); "
+                                  "while the clock runs, two periods with no plan plan again from the newest inputs "
+                                  "carried forward (a scan the chain dropped does not leave the car without a command)")
+    plan_on: PlanTrigger = Field(PlanTrigger.SCAN, description="what starts a plan: scan (each scan's first answer, "
+                                 "obstacles or odometry, whichever comes first) or odometry (each /odom)")
     reference_speed: float = Field(10.0, gt=0.0, le=40.0, description="cruise speed along the route (m/s)")
     goal_decel: float = Field(1.5, gt=0.0, description="comfortable deceleration (m/s^2) for stopping at the goal")
     goal_tolerance: float = Field(3.0, gt=0.0, description="the route is done within this distance of its end (m)")

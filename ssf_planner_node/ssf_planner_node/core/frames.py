@@ -1,17 +1,19 @@
 """Frames around the planner: the planar ego state from an odometry pose, obstacles moved into the route's frame
-with the pose at their stamp, and a short history of poses to look those up."""
+with the pose at their stamp, a short history of poses to look those up, and the odometry of a pair's second scan
+from the flow's ego motion."""
 
 from __future__ import annotations
 
 import bisect
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ssf_common.geometry.kinematics import PlanarState, driven
 from ssf_common.geometry.se3 import invert, yaw_matrix, yaw_of
-from ssf_common.records import Obstacles, OdometryEstimate
+from ssf_common.records import EgoMotion, Obstacles, OdometryEstimate
 from ssf_planner_node.core.models import Command
 from ssf_planner_node.core.planner import VehicleState
 
@@ -36,6 +38,17 @@ def vehicle_state(stamp_ns: int, pose: np.ndarray, speed: float) -> VehicleState
 def state_of(odometry: OdometryEstimate) -> VehicleState:
     """The planar state an odometry message describes (speed: its forward twist)."""
     return vehicle_state(odometry.stamp_ns, odometry.pose, float(odometry.twist[0]))
+
+
+def odometry_after(odometry: OdometryEstimate, ego: EgoMotion, mount: np.ndarray) -> OdometryEstimate:
+    """The odometry of the pair's second scan from the odometry of its first (stamped as the ego motion's first scan)
+    and the sensor's motion over the pair (`mount`: base_link <- the ego's sensor frame): the pose the odometry node
+    will refine against its map, known as soon as the flow has aligned the pair; speed and yaw rate from that step."""
+    pose = odometry.pose @ mount @ invert(ego.transform) @ invert(mount)
+    step = invert(odometry.pose) @ pose
+    twist = np.zeros(6)
+    twist[0], twist[5] = step[0, 3] / ego.dt, yaw_of(step) / ego.dt
+    return replace(odometry, stamp_ns=ego.next_stamp_ns, pose=pose, twist=twist)
 
 
 class PoseHistory:
