@@ -44,5 +44,6 @@ def _node_action(node_class: Any, spec: NodeSpec, global_parameters: dict[str, A
         remappings=list(spec.remappings.items()),
         arguments=list(spec.arguments),
         respawn=spec.respawn,
+        prefix=f"nice -n {spec.nice}" if spec.nice else None,
         output="screen",
     )

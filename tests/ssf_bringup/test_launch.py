@@ -228,6 +228,21 @@ def test_ctrl_c_right_after_start_stops_every_node_without_a_traceback(tmp_path)
     assert "Traceback" not in text and "KeyboardInterrupt" not in text
 
 
+def test_a_node_runs_at_the_niceness_its_graph_gives_it(tmp_path):
+    graph = write_graph(tmp_path, [{"executable": "ssf_seg_node", "name": "seg"},
+                                   {"executable": "ssf_odom_node", "name": "odom", "nice": 7}])
+    launcher, output = launch(graph)
+    try:
+        assert wait_until(lambda: len(re.findall(r"started \(pid (\d+)\)", "".join(output.lines))) == 2, timeout_s=30)
+        started = dict(re.findall(r"\[(\w+)\] started \(pid (\d+)\)", "".join(output.lines)))
+        base = os.getpriority(os.PRIO_PROCESS, launcher.pid)
+        assert os.getpriority(os.PRIO_PROCESS, int(started["odom"])) == min(base + 7, 19)
+        assert os.getpriority(os.PRIO_PROCESS, int(started["seg"])) == base
+    finally:
+        launcher.send_signal(signal.SIGINT)
+        launcher.wait(timeout=60)
+
+
 def test_killed_launcher_leaves_no_orphans(tmp_path):
     graph = write_graph(tmp_path, [{"executable": "ssf_seg_node", "name": "seg"}, {"executable": "ssf_odom_node", "name": "odom"}])
     launcher, output = launch(graph)
