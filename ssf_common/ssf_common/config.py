@@ -10,10 +10,10 @@ from __future__ import annotations
 import json
 import re
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
 import yaml
-from pydantic import BaseModel, ConfigDict, ValidationError
+from pydantic import BaseModel, ConfigDict, ValidationError, model_validator
 from yaml.nodes import MappingNode, Node, ScalarNode, SequenceNode
 
 from ssf_common.errors import ConfigError
@@ -31,9 +31,50 @@ _MERGE_TAG = "tag:yaml.org,2002:merge"
 
 
 class Section(BaseModel):
-    """Base of every config section: unknown keys are errors, numbers finite, values validated and immutable."""
+    """Base of every config section: unknown keys are errors, numbers finite, values validated and immutable; fields
+    renamed since a config was written are read under their old names too (`renamed`: old name -> name now)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+    renamed: ClassVar[dict[str, str]] = {}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _current_names(cls, data: Any) -> Any:
+        try:
+            return current_names(cls, data) if isinstance(data, dict) else data
+        except ConfigError as err:
+            raise ValueError(str(err)) from None
+
+
+def _section_of(model: Any, name: str) -> type[BaseModel] | None:
+    """The config model of a model's field, when that field is a section."""
+    field = model.model_fields.get(name) if isinstance(model, type) and issubclass(model, BaseModel) else None
+    annotation = field.annotation if field is not None else None
+    return annotation if isinstance(annotation, type) and issubclass(annotation, BaseModel) else None
+
+
+def current_names(model: Any, values: dict[str, Any]) -> dict[str, Any]:
+    """Nested config values with every renamed field (the model's and its sections') under its name now; a field given
+    under both names is an error."""
+    renamed = getattr(model, "renamed", {})
+    current: dict[str, Any] = {}
+    for key, value in values.items():
+        name = renamed.get(key, key)
+        if name != key and name in values:
+            raise ConfigError(f"'{key}' is the old name of '{name}': give only '{name}'")
+        section = _section_of(model, name)
+        current[name] = current_names(section, value) if section is not None and isinstance(value, dict) else value
+    return current
+
+
+def current_name(model: Any, dotted: str) -> str:
+    """A dotted field name with each renamed part under its name now ('rigid.dt' -> 'rigid.scan_period')."""
+    parts = []
+    for part in dotted.split("."):
+        part = getattr(model, "renamed", {}).get(part, part)
+        parts.append(part)
+        model = _section_of(model, part)
+    return ".".join(parts)
 
 
 # Reading YAML
@@ -298,8 +339,8 @@ def build(model: type[ModelT], *layers: dict[str, Any], source: str = "config") 
     """Validate the deep merge of layers (nested or dotted dicts, later wins) into a config model."""
     merged: dict[str, Any] = {}
     try:
-        for layer in layers:
-            merged = merge(merged, unflatten(flatten(layer)))
+        for layer in layers:  # each under today's names first: an old name in a later layer still wins
+            merged = merge(merged, current_names(model, unflatten(flatten(layer))))
     except ConfigError as err:
         raise ConfigError(f"{source}: {err}") from None
     try:

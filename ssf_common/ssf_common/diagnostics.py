@@ -16,7 +16,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Any, NamedTuple
+from typing import Any, ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -41,7 +41,8 @@ class DiagnosticsConfig(Section):
     """How a node judges its inputs and reports (parameters `diagnostics.*` of every node)."""
 
     period_s: float = Field(1.0, gt=0.0, description="/diagnostics is published this often (steady clock)")
-    sensor_period_s: float = Field(0.1, gt=0.0, description="the period inputs come at (the LiDAR's)")
+    renamed: ClassVar[dict[str, str]] = {"sensor_period_s": "scan_period"}
+    scan_period: float = Field(0.1, gt=0.0, description="the period inputs come at (the LiDAR's, s)")
     stale_periods: float = Field(2.0, gt=0.0, description="WARN: an input older than this many sensor periods by the "
                                  "node's clock is stale")
     silent_after_s: float = Field(2.0, gt=0.0, description="ERROR: an input silent this long by the steady clock "
@@ -53,7 +54,7 @@ class DiagnosticsConfig(Section):
     @property
     def stale_after_s(self) -> float:
         """Age (node clock) past which an input is stale."""
-        return self.stale_periods * self.sensor_period_s
+        return self.stale_periods * self.scan_period
 
 
 class Condition(NamedTuple):

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
-from typing import NamedTuple
+from typing import ClassVar, NamedTuple
 
 import numpy as np
 from pydantic import Field
@@ -32,7 +32,9 @@ class PerceptionConfig(Section):
     seg: SegConfig = SegConfig()
     fusion: FusionConfig = FusionConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
-    dt: float = Field(0.1, gt=0.0, description="time between consecutive scans (s) where the scans carry no stamps")
+    renamed: ClassVar[dict[str, str]] = {"dt": "scan_period"}
+    scan_period: float = Field(0.1, gt=0.0, description="time between consecutive scans (s) where the scans carry no "
+                               "stamps")
 
 
 class ChainTimes(NamedTuple):
@@ -78,12 +80,12 @@ class PerceptionChain:
                  time1: np.ndarray | None = None, time2: np.ndarray | None = None) -> ScanPerception:
         """Semantic scene flow and obstacles of scan t (pc1) towards scan t+1 (pc2). follows: pc1 is the scan the
         previous call's pc2 was, so that call's segmentation, carried by its flow, is the preliminary mask M^(0)
-        (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.dt.
+        (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.scan_period.
         time1, time2: each point's time (s relative to its scan's stamp), where the sweeps took their period to turn:
         the flow deskews with them (flow.deskew), as the flow node does."""
         radius = self.config.fusion.prior_radius
         started = time.process_time()
-        dt = self.config.dt if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
+        dt = self.config.scan_period if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
         # 1. the temporal prior: the previous scan's segmentation carried onto this one
         if mask is None and follows and self.source is not None:
             mask = carry_prior(self.source, pc1)

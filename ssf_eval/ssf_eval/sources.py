@@ -104,10 +104,10 @@ def source_scenario(args: argparse.Namespace) -> Scenario | None:
 
 
 def sweep_period_layer(scenario: Scenario) -> dict[str, Any]:
-    """Perception config values that follow the simulated sensor: the time between scans (dt, flow.rigid.dt,
-    seg.selection.dt)."""
+    """Perception config values that follow the simulated sensor: the time between scans (scan_period, flow.rigid.scan_period,
+    seg.selection.scan_period)."""
     dt = scenario.episode.dt
-    return {"dt": dt, "flow": {"rigid": {"dt": dt}}, "seg": {"selection": {"dt": dt}}}
+    return {"scan_period": dt, "flow": {"rigid": {"scan_period": dt}}, "seg": {"selection": {"scan_period": dt}}}
 
 
 def bag_pairs(path: Path, protocol: PairProtocol, limit: int, seed: int = 0) -> list[ScanPair]:

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Any
+from typing import Any, ClassVar
 
 from pydantic import Field
 
@@ -34,7 +34,8 @@ class FusionNodeConfig(Section):
     fusion: FusionConfig = FusionConfig()
     obstacles: ObstacleConfig = ObstacleConfig()
     timeout_s: float = Field(0.5, gt=0.0, description="a scan whose loop waits longer is finished with its best answer")
-    dt: float = Field(0.1, gt=0.0, description="seconds between scans where a flow comes without its ego motion (the "
+    renamed: ClassVar[dict[str, str]] = {"dt": "scan_period"}
+    scan_period: float = Field(0.1, gt=0.0, description="seconds between scans where a flow comes without its ego motion (the "
                       "ego motion's stamps tell otherwise)")
 
 
@@ -107,7 +108,7 @@ class FusionNode(Node):
         self._publish_state(finish.status)
         if result.ego is None:  # a flow whose ego motion never came (not from our flow node): the core fits one
             self.stats.count("results_without_ego_motion")
-        obstacles = result_obstacles(result, self.config.obstacles, self.config.dt).all()
+        obstacles = result_obstacles(result, self.config.obstacles, self.config.scan_period).all()
         self.obstacle_pub.publish(obstacles_to_msg(obstacles))  # first: the planner plans the scan on them
         self.result_pub.publish(semantic_flow_to_cloud(result))  # the odometry's pose serves the next plan
         radius = self.config.fusion.prior_radius  # last: the flow node needs it only when the next scan comes

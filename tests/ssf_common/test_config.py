@@ -12,11 +12,40 @@ from ssf_common.config import (
     MAX_YAML_DEPTH,
     Section,
     build,
+    current_name,
+    dump,
     load_yaml_text,
     parse_overrides,
     read_yaml,
 )
 from ssf_common.errors import ConfigError
+
+
+class Sweep(Section):
+    renamed = {"dt": "scan_period"}
+    scan_period: float = Field(0.1, gt=0)
+
+
+class Sensor(Section):
+    renamed = {"sweep_settings": "sweep"}
+    sweep: Sweep = Sweep()
+    rows: int = 64
+
+
+def test_a_renamed_field_reads_under_its_old_name_in_files_flags_and_nested_sections():
+    """Configs written before a rename still load: the old name is read as the new one in any layer, a later layer
+    wins whichever name it uses, and giving both names at once is one clear error."""
+    assert build(Sweep, {"dt": 0.05}).scan_period == 0.05
+    assert Sweep(dt=0.05).scan_period == 0.05 and Sweep.model_validate({"dt": 0.2}).scan_period == 0.2
+    assert build(Sensor, {"sweep_settings": {"dt": 0.05}}).sweep.scan_period == 0.05
+    assert build(Sensor, {"sweep.scan_period": 0.2}, {"sweep.dt": 0.05}).sweep.scan_period == 0.05
+    assert build(Sensor, {"sweep.dt": 0.05}, {"sweep": {"scan_period": 0.2}}).sweep.scan_period == 0.2
+    with pytest.raises(ConfigError, match="'dt' is the old name of 'scan_period'"):
+        build(Sensor, {"sweep": {"dt": 0.05, "scan_period": 0.2}})
+    with pytest.raises(ConfigError, match="scan_period"):
+        build(Sweep, {"dt": -1.0})  # the value is checked under the name it has now
+    assert current_name(Sensor, "sweep_settings.dt") == "sweep.scan_period" and current_name(Sensor, "rows") == "rows"
+    assert "dt" not in dump(build(Sweep, {"dt": 0.05}))  # written back under the name it has now
 
 
 class Limits(Section):

@@ -111,6 +111,18 @@ def test_declare_config_layers_node_defaults_under_overrides(nodes):
     assert config.lidar.rows == 32 and config.lidar.range_m == 50.0  # the override wins over the node default
 
 
+def test_declare_config_takes_a_renamed_parameter_under_its_old_name(nodes):
+    """-p failsafe.sensor_period:=0.05 still sets what is now failsafe.scan_period; both names at once is an error."""
+    from ssf_planner_node.core.config import PlannerConfig
+
+    node = nodes("renamed", ["--ros-args", "-p", "failsafe.sensor_period:=0.05"])
+    assert node.declare_config(PlannerConfig).failsafe.scan_period == 0.05
+    assert node.get_parameter("failsafe.scan_period").value == 0.05
+    both = nodes("both", ["--ros-args", "-p", "failsafe.sensor_period:=0.05", "-p", "failsafe.scan_period:=0.2"])
+    with pytest.raises(ConfigError, match="'failsafe.sensor_period' is the old name of 'failsafe.scan_period'"):
+        both.declare_config(PlannerConfig)
+
+
 @pytest.mark.parametrize(
     "override, message",
     [("lidar.rows:=-1", "lidar.rows"), ("lidar.rows:=abc", "lidar.rows"), ("lidar.colour:=1", "unknown parameter")],

@@ -49,8 +49,9 @@ def test_eval_seg_follows_the_sensor_rate(street, tmp_path):
     document = json.loads(out.read_text())
     assert document["source"]["sensor"] == "os1_128" and document["source"]["dt"] == pytest.approx(0.05)
     perception = document["config"]["perception"]
-    assert perception["dt"] == pytest.approx(0.05) and perception["seg"]["selection"]["dt"] == pytest.approx(0.05)
-    assert perception["flow"]["rigid"]["dt"] == pytest.approx(0.05)
+    assert perception["scan_period"] == pytest.approx(0.05)
+    assert perception["seg"]["selection"]["scan_period"] == pytest.approx(0.05)
+    assert perception["flow"]["rigid"]["scan_period"] == pytest.approx(0.05)
 
 
 def test_sensor_overrides_need_the_simulator(tmp_path, capsys):

@@ -160,6 +160,6 @@ def test_the_alignment_without_movers_wins_where_only_it_is_a_change_a_vehicle_c
     assert nearer_prior(forward(0.090), base, prior, config)  # the masked alignment: 3 mm from constant velocity
     assert not nearer_prior(forward(0.0), base, prior, config)  # 8.7 cm off in 0.1 s: beyond a vehicle as well
     assert not nearer_prior(forward(0.090), forward(0.030), prior, config)  # 5.7 cm: a hard brake, and it agrees
-    faster = RigidConfig(dt=0.05)  # at 20 Hz a vehicle changes 4 times less
+    faster = RigidConfig(scan_period=0.05)  # at 20 Hz a vehicle changes 4 times less
     assert not nearer_prior(forward(0.060), base, prior, faster)
     assert not nearer_prior(forward(0.090), base, prior, config, dynamic_share=0.6)  # a mask hiding most of the scan

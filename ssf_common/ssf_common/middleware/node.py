@@ -343,6 +343,12 @@ class Node:
         """Declare every field of a config model as a dotted parameter (defaults: the model's, with `defaults`
         laid over them) and return the validated model."""
         defaults = config_lib.flatten(config_lib.build(model, defaults or {}).model_dump(mode="json"))
+        for key in [key for key in self._overrides if key.startswith(prefix)]:  # renamed fields' old names too
+            name = prefix + config_lib.current_name(model, key[len(prefix):])
+            if name != key and name in self._overrides:
+                raise ConfigError(f"parameter '{key}' is the old name of '{name}': give only '{name}'")
+            if name != key:
+                self._overrides[name] = self._overrides.pop(key)
         values = {}
         for name, default in defaults.items():
             values[name] = self.declare_parameter(f"{prefix}{name}", default).value

@@ -149,7 +149,7 @@ def perception_for(masks: str, seed: int, overrides: dict | None = None, plain: 
     maskless = None
     if plain:  # the loop's estimator answers the graph's questions only; the stand-in masks' one asks both
         maskless = make_estimator(config.flow.estimator, config.flow) if segmented else estimator
-    return OdomPerception(OdomMaskSource(masks), estimator, pipeline if segmented else None, seed, maskless, config.dt)
+    return OdomPerception(OdomMaskSource(masks), estimator, pipeline if segmented else None, seed, maskless, config.scan_period)
 
 
 def format_odom_table(results: dict) -> str:
@@ -195,7 +195,7 @@ def run_odom(args: argparse.Namespace) -> int:
 
     require_finite(args.period, "--period", above=0.0)
     check_writable_dir(args.out, "output folder")
-    layers = [{"perception": {"flow": WHOLE_SCAN, "dt": args.period}, "odom": {"scan_period": args.period}}]
+    layers = [{"perception": {"flow": WHOLE_SCAN, "scan_period": args.period}, "odom": {"scan_period": args.period}}]
     layers += [read_yaml(args.config)] if args.config else []
     layers += [parse_overrides(args.param, "-p")]
     layers += [{"odom": {"method": args.method}}] if args.method else []

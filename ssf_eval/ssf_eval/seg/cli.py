@@ -109,8 +109,9 @@ def sequences_from_args(args: argparse.Namespace):
 
 
 def add_perception_options(parser: argparse.ArgumentParser) -> None:
-    """--config and -p for the perception config (flow.*, seg.*, fusion.*, obstacles.*, dt)."""
-    parser.add_argument("--config", type=Path, help="perception config YAML (flow.*, seg.*, fusion.*, obstacles.*, dt)")
+    """--config and -p for the perception config (flow.*, seg.*, fusion.*, obstacles.*, scan_period)."""
+    parser.add_argument("--config", type=Path,
+                        help="perception config YAML (flow.*, seg.*, fusion.*, obstacles.*, scan_period)")
     parser.add_argument("-p", "--param", action="append", default=[], metavar="NAME:=VALUE",
                         help="override one perception config value, e.g. -p seg.geometric.min_speed:=0.5")
     parser.add_argument("--device", default="cpu", help="torch device for network methods")
@@ -161,9 +162,9 @@ def run_estimate_seg(args: argparse.Namespace) -> int:
     if args.obstacles:
         check_writable(args.obstacles, "obstacle file")
     config = perception_config(args, **{"seg.method": args.method, "flow.estimator": args.flow_estimator,
-                                        "fusion.max_iterations": args.iterations, "dt": args.dt})
+                                        "fusion.max_iterations": args.iterations, "scan_period": args.dt})
     perception = PerceptionChain(config, args.device)
-    (pc1, time1), (pc2, time2) = (read_scan_with_time(path, sweep_period=config.dt) for path in (args.pc1, args.pc2))
+    (pc1, time1), (pc2, time2) = (read_scan_with_time(path, sweep_period=config.scan_period) for path in (args.pc1, args.pc2))
     result = perception.perceive(pc1[:, :3], pc2[:, :3], frame_id="sensor", time1=time1, time2=time2)
     seg = result.fusion.segmentation
     columns = np.column_stack([seg.dynamic_prob, seg.label, seg.instance, result.fusion.flow]).astype(np.float32)

@@ -71,11 +71,11 @@ def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], 
                 started = time.perf_counter()
                 segmentation = method.segmenter.segment(pair.pc1, given.flow, None, given.ego).segmentation
                 times[method.label].append((time.perf_counter() - started) * 1e3)
-                obstacles = extract_obstacles(pair.pc1, given.flow, segmentation, given.ego, config.dt, 0, "sensor",
+                obstacles = extract_obstacles(pair.pc1, given.flow, segmentation, given.ego, config.scan_period, 0, "sensor",
                                               config.obstacles)
                 rounds = 1
             counts[method.label].append(seg_counts(segmentation, pair))
-            errors[method.label].append(obstacle_errors(obstacles, segmentation, pair, config.dt))
+            errors[method.label].append(obstacle_errors(obstacles, segmentation, pair, config.scan_period))
             iterations[method.label].append(rounds)
         if progress is not None:
             progress(index + 1)

@@ -4,6 +4,7 @@ ROS parameters (`-p horizon:=12`) and `ssf` flags."""
 from __future__ import annotations
 
 from enum import Enum
+from typing import ClassVar
 
 from pydantic import Field, model_validator
 
@@ -101,7 +102,8 @@ class PassingConfig(Section):
 class FailSafeConfig(Section):
     """When inputs are stale and how the car brakes then (parameters `failsafe.*`)."""
 
-    sensor_period: float = Field(0.1, gt=0.0, le=1.0, description="the LiDAR's period (s): odometry and obstacles "
+    renamed: ClassVar[dict[str, str]] = {"sensor_period": "scan_period"}
+    scan_period: float = Field(0.1, gt=0.0, le=1.0, description="the LiDAR's period (s): odometry and obstacles "
                                  "come once per scan")
     stale_periods: float = Field(2.0, gt=0.0, description="an input older than this many sensor periods by the node's "
                                  "clock brakes the car")
@@ -119,7 +121,7 @@ class FailSafeConfig(Section):
     @property
     def stale_after_s(self) -> float:
         """Age (node clock) past which an input is stale."""
-        return self.stale_periods * self.sensor_period
+        return self.stale_periods * self.scan_period
 
 
 class SolverConfig(Section):

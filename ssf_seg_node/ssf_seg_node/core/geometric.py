@@ -162,4 +162,4 @@ def build_geometric(config, device: str = "cpu") -> GeometricSegmenter:
     """Factory entry: the geometric segmenter (it reads points and flow together)."""
     if config.input is not SegInput.BOTH:
         raise ConfigError(f"segmenter 'geometric' needs points and flow (input both), not '{config.input.value}'")
-    return GeometricSegmenter(config.geometric, config.selection.dt)
+    return GeometricSegmenter(config.geometric, config.selection.scan_period)

@@ -4,6 +4,7 @@ sizes differ little, velocity-based (slots whose mean speed is within theta of t
 from __future__ import annotations
 
 from enum import Enum
+from typing import ClassVar
 
 import numpy as np
 from pydantic import Field
@@ -28,7 +29,8 @@ class StaticSelectionConfig(Section):
                                   "below this count as similar, and the velocity rule decides")
     velocity_threshold: float = Field(1.0, gt=0.0, description="theta (m/s): a slot is static when its mean speed is "
                                       "within this of the ego speed")
-    dt: float = Field(0.1, gt=0.0, description="time between the two scans (s)")
+    scan_period: float = Field(0.1, gt=0.0, description="time between the two scans (s)")
+    renamed: ClassVar[dict[str, str]] = {"dt": "scan_period"}
 
 
 def slot_speeds(flow: np.ndarray, hard: np.ndarray, count: int, dt: float) -> np.ndarray:
@@ -68,5 +70,5 @@ def static_slots_of(slots: np.ndarray, flow: np.ndarray, points: np.ndarray, ego
     """Apply the selection to soft slots: sizes and speeds from each point's most likely slot."""
     count = slots.shape[1]
     hard = slots.argmax(axis=1)
-    return select_static(label_counts(hard, count), slot_speeds(flow, hard, count, config.dt),
-                         ego_speed_of(ego, flow, points, config.dt), config)
+    return select_static(label_counts(hard, count), slot_speeds(flow, hard, count, config.scan_period),
+                         ego_speed_of(ego, flow, points, config.scan_period), config)

@@ -82,7 +82,7 @@ def continue_carried(source: np.ndarray, labels: np.ndarray, carry: CarriedMotio
            & (fit_moving.plane + fit_moving.residual <= fit_carried.plane + fit_carried.residual))
     chosen = Fit(*(np.where(own, mine, theirs) for mine, theirs in zip(fit_moving, fit_carried)))
     step = np.where(own[:, None], translation, carry.translation)
-    fast = np.linalg.norm(step[:, :2], axis=1) > config.min_speed * config.dt
+    fast = np.linalg.norm(step[:, :2], axis=1) > config.min_speed * config.scan_period
     kept = candidates & carry.usable & fast & no_worse(chosen, fit_static, floor, config)
     return (kept, np.where(kept & ~own, 0.0, yaw), np.where(kept[:, None], step, translation),
             Fit(*(np.where(kept, mine, theirs) for mine, theirs in zip(chosen, fit_moving))))

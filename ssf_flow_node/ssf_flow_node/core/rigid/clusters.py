@@ -76,4 +76,4 @@ def noise_floors(surfaces: Surfaces, clusters: Clusters, noise: float, config: R
     own roughness (the median distance of scan t+1's points from their neighbours' surfaces) and half a step at
     min_speed."""
     rough = label_quantiles(surfaces.roughness, clusters.labels2, component_count(clusters), 0.5)
-    return np.maximum(config.surface_noise * np.maximum(rough, noise), 0.5 * config.min_speed * config.dt)
+    return np.maximum(config.surface_noise * np.maximum(rough, noise), 0.5 * config.min_speed * config.scan_period)

@@ -3,6 +3,8 @@ and carried motions (speeds in m/s, turns in rad/s)."""
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 from pydantic import Field
 
 from ssf_common.config import Section
@@ -11,7 +13,8 @@ from ssf_common.config import Section
 class RigidConfig(Section):
     """Clustering and per-cluster registration of the learning-free estimator (speeds in m/s, turns in rad/s)."""
 
-    dt: float = Field(0.1, gt=0.0, description="time between the two scans (s)")
+    renamed: ClassVar[dict[str, str]] = {"dt": "scan_period"}
+    scan_period: float = Field(0.1, gt=0.0, description="time between the two scans (s)")
     cluster_voxel: float = Field(0.5, gt=0.0, description="voxel edge (m) of the connected-component clustering")
     split_voxel: float = Field(0.25, ge=0.0, description="a cluster that stays still although parts of it changed is "
                                "clustered again with this voxel (m), so a walker beside a parked car gets its own motion "

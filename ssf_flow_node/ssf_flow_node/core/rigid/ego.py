@@ -47,7 +47,7 @@ def every_point(state: PairState) -> np.ndarray:
 def plausible(motion: np.ndarray, prior: np.ndarray, dynamic_share: float, config: RigidConfig) -> bool:
     """Whether a motion is a change of the previous pair's that a vehicle can make in dt (ego_max_accel), aligned
     while the mask leaves most of the points to it (ego_mask_share)."""
-    return (motion_gap(motion, prior) <= config.ego_max_accel * config.dt ** 2
+    return (motion_gap(motion, prior) <= config.ego_max_accel * config.scan_period ** 2
             and dynamic_share <= config.ego_mask_share)
 
 def nearer_prior(masked: np.ndarray, base: np.ndarray, prior: np.ndarray, config: RigidConfig,

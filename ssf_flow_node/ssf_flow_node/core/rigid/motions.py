@@ -78,7 +78,7 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     first = np.repeat(picks1, lengths)
     second = picks2[np.repeat(starts, lengths) + ragged_arange(lengths)]
     displacement = points2[second, :2] - points1[first, :2]
-    max_step = config.max_speed * config.dt
+    max_step = config.max_speed * config.scan_period
     near = np.linalg.norm(displacement, axis=1) <= max_step
     first, displacement = first[near], displacement[near]
     half = int(np.ceil(max_step / config.histogram_bin)) + 1
@@ -143,7 +143,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         fit &= ~(unprovable(still, floor, counted, config) & ~believed & ~carried_here)
     translation = initial_translations(points1, points2, clusters, fit, config, tree, previous,
                                        None if carry is None else carry.translation)
-    max_yaw = config.max_yaw_rate * config.dt
+    max_yaw = config.max_yaw_rate * config.scan_period
     fitting = fit[labels]
     icp_source, icp_labels, icp_allowed = source[fitting], labels[fitting], allowed[fitting]
     for gate in np.geomspace(config.icp_gates[0], config.icp_gates[1], config.icp_iterations):
@@ -170,7 +170,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
         moved = yaw_translate(source, yaw[labels], translation[labels])
     height = np.column_stack([np.zeros((len(source), 2)), translation[labels, 2]])  # still, but at the height
     fit_static = quality(source + height)
-    speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.dt
+    speed = np.linalg.norm(label_means((moved - source)[:, :2], labels, count), axis=1) / config.scan_period
     moving = active & (speed > config.min_speed) & explains(fit_moving, fit_static, believed, floor, counted, config)
     ends = np.zeros(count, dtype=bool)  # moved by the shift of their two ends: flanks sliding along themselves
     spare = active & ~moving & (sizes1 >= config.end_points)
@@ -178,7 +178,7 @@ def cluster_motions(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     tried = spare | (moving & (sizes1 >= config.end_points))  # a motion may yet fail as the sensor resamples still
     if config.end_spacings > 0 and tried.any():
         shift = end_shifts(points1, points2, clusters, tried, config, bands)
-        shifted = np.linalg.norm(shift[:, :2], axis=1) > config.min_speed * config.dt
+        shifted = np.linalg.norm(shift[:, :2], axis=1) > config.min_speed * config.scan_period
         if shifted.any():  # judged on those clusters' points only
             on = shifted[labels]
             fit_ends = fit_quality(yaw_translate(source[on], np.zeros(np.count_nonzero(on)), shift[labels[on]]),
@@ -295,7 +295,7 @@ def attach_to_moving(points: np.ndarray, clustered: np.ndarray, labels: np.ndarr
                           nan=config.residual_cap)
     carried = np.nan_to_num(surface_distance(moved, tree, points2, normals, config.residual_cap)[1],
                             nan=config.residual_cap)
-    better = (carried < (1.0 - config.min_gain) * still) & (still - carried > 0.5 * config.min_speed * config.dt)
+    better = (carried < (1.0 - config.min_gain) * still) & (still - carried > 0.5 * config.min_speed * config.scan_period)
     attached[near[better]] = cluster[better]
     return attached
 
