@@ -42,6 +42,7 @@ BYTES_PER_RAY = {"default": 32.0, "all": 170.0}
 PROGRESS_PERIOD_S = 30.0  # a long run says how far it is this often
 SCENARIO_LOADERS = "ssf.scenarios"  # entry points: load_scenario(name_or_path) of the installed simulator
 REALTIME_LOOP_TIMEOUT_S = 0.15  # in real time a scan's fusion loop answers within the latency budget (scan -> /cmd_vel)
+REALTIME_ODOMETRY_NICE = 19  # off the critical path in real time: it takes the cores' idle time (docs/realtime.md)
 
 
 class Recording(NamedTuple):
@@ -94,14 +95,19 @@ class DemoPaths:
 
 
 def in_real_time(graph: GraphSpec) -> GraphSpec:
-    """The graph with the simulator at wall-clock rate instead of lockstep, and the fusion loop answering within the
-    real-time latency budget (in lockstep time stands still while it waits)."""
+    """The graph with the simulator at wall-clock rate instead of lockstep, the fusion loop answering within the
+    real-time latency budget (in lockstep time stands still while it waits), the planner planning each scan on its
+    obstacles, and the odometry, then off the critical path, yielding the cores to the stages on it."""
     nodes = []
     for node in graph.nodes:
         if node.executable == "sim_bridge":
             node = node.model_copy(update={"parameters": {**node.parameters, "mode": "realtime"}})
         if node.executable == "ssf_fusion_node":
             node = node.model_copy(update={"parameters": {**node.parameters, "timeout_s": REALTIME_LOOP_TIMEOUT_S}})
+        if node.executable == "ssf_planner_node":
+            node = node.model_copy(update={"parameters": {**node.parameters, "plan_on": "scan"}})
+        if node.executable == "ssf_odom_node":
+            node = node.model_copy(update={"nice": REALTIME_ODOMETRY_NICE})
         nodes.append(node)
     return graph.model_copy(update={"nodes": nodes})
 

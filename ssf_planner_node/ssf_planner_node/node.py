@@ -385,14 +385,16 @@ class PlannerNode(Node):
         stale = self._stale(clock_ns, steady_ns) if not steady or running else self.inputs.silent(steady_ns)
         if stale and self.inputs.brake_due(clock_ns, steady_ns):
             self._publish_step(self._blind_brake(self.odometry, stale), clock_ns)
-        elif not stale and steady and running and self._command_overdue(steady_ns):
+        elif not stale and steady and running and self._command_overdue(clock_ns, steady_ns):
             self._tick(self.odometry)
 
-    def _command_overdue(self, steady_ns: int) -> bool:
+    def _command_overdue(self, clock_ns: int, steady_ns: int) -> bool:
         """Whether two control periods of steady time went by since the last command (one between scans' answers is
-        their jitter), with odometry on the clock's time line (to be carried forward by it)."""
-        return (self.sent_steady_ns is not None and steady_ns - self.sent_steady_ns >= 2 * self.config.control_period * 1e9
-                and self._on_timeline(self.odometry.stamp_ns))
+        their jitter) while the clock went on by more than one (in lockstep it goes on one step per command), with
+        odometry on the clock's time line (to be carried forward by it)."""
+        period_ns = self.config.control_period * 1e9
+        return (self.sent_steady_ns is not None and steady_ns - self.sent_steady_ns >= 2 * period_ns
+                and clock_ns - self.sent[-1][0] >= 1.5 * period_ns and self._on_timeline(self.odometry.stamp_ns))
 
     def _publish(self, command: Command) -> None:
         self.last_command = command

@@ -111,6 +111,14 @@ def test_the_bench_graph_is_the_demo_graph_in_real_time():
     assert sim.parameters["lidar.rolling_shutter"] is False  # measured on the sweeps `ssf demo` casts
     rolling = bench_graph_spec("urban_200", 1, per_node_parameters(["sim_bridge:lidar.rolling_shutter:=true"]))
     assert next(node for node in rolling.nodes if node.executable == "sim_bridge").parameters["lidar.rolling_shutter"] is True
+    # in real time the planner plans each scan on its obstacles and the odometry, off the critical path, yields the
+    # cores; in lockstep (the demo) each step waits for the whole chain, odometry included
+    planner = next(node for node in graph.nodes if node.executable == "ssf_planner_node")
+    odometry = next(node for node in graph.nodes if node.executable == "ssf_odom_node")
+    assert planner.parameters["plan_on"] == "scan" and odometry.nice == 19
+    lockstep = bench_graph_spec("urban_200", mode="lockstep")
+    assert next(node for node in lockstep.nodes if node.executable == "ssf_planner_node").parameters["plan_on"] == "odometry"
+    assert next(node for node in lockstep.nodes if node.executable == "ssf_odom_node").nice == 0
 
 
 def test_node_parameters_reach_their_node_and_unknown_nodes_are_refused():
