@@ -27,6 +27,7 @@ from ssf_bringup.launcher import GraphSpec, Launcher
 from ssf_common import messages, topics
 from ssf_common.diagnostics import Level, read_levels
 from ssf_common.errors import ConfigError
+from ssf_common.render.frames import header_stamp
 
 ONSET_LIMIT_S = 0.3  # the braking contract: onset at most this long after the last fresh input (simulated time)
 DECELERATION = 6.0  # m/s^2: how the planner brakes (its vehicle.max_decel, the simulated car's limit too)
@@ -186,8 +187,8 @@ class FaultProbe(Probe):
         self._arrived(topics.ODOM, messages.stamp_ns(msg.header.stamp))
 
     def on_obstacles(self, cdr: bytes) -> None:
-        sec, nanosec = np.frombuffer(bytes(cdr[4:12]), dtype="<u4", count=2)  # CDR header, then std_msgs/Header
-        self._arrived(topics.OBSTACLES, int(sec) * 1_000_000_000 + int(nanosec))
+        super().on_obstacles(cdr)
+        self._arrived(topics.OBSTACLES, header_stamp(cdr))
 
     def on_command(self, msg: Any) -> None:
         super().on_command(msg)

@@ -26,6 +26,7 @@ from ssf_common.config import parse_override
 from ssf_common.diagnostics import read_status
 from ssf_common.errors import ConfigError
 from ssf_common.geometry.se3 import invert, yaw_of
+from ssf_common.render.frames import header_stamp
 
 SAMPLE_PERIOD_S = 1.0
 WARMUP_S = 5.0  # the first seconds (imports, discovery, the first scans) are not counted
@@ -140,11 +141,11 @@ class Probe:
 
     def on_scan(self, cdr: bytes) -> None:
         with self.lock:
-            self.scans.append((time.monotonic(), header_stamp_ns(cdr)))
+            self.scans.append((time.monotonic(), header_stamp(cdr)))
 
     def on_obstacles(self, cdr: bytes) -> None:
         """Obstacles of scan t, found on the pair (t, t+1) (its flow's ego motion came first), answer scan t+1."""
-        stamp = header_stamp_ns(cdr)
+        stamp = header_stamp(cdr)
         with self.lock:
             self.answers.append((time.monotonic(), self.pairs.get(stamp, stamp)))
 
@@ -256,12 +257,6 @@ def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, fl
                     (time.monotonic(), handle.cpu_percent(None), handle.memory_info().rss / 2**20, used.user + used.system))
             except psutil.Error:
                 continue
-
-
-def header_stamp_ns(cdr: bytes) -> int:
-    """The header stamp (ns) of a message that starts with a std_msgs/Header, read from its CDR bytes."""
-    sec, nanosec = np.frombuffer(bytes(cdr[4:12]), dtype="<i4", count=2)  # CDR encapsulation, then the header's stamp
-    return int(sec) * 1_000_000_000 + int(np.uint32(nanosec))
 
 
 def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:

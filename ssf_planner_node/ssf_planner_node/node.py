@@ -4,8 +4,8 @@ One plan per scan (the simulator's 10 Hz), as soon as its first answer comes: th
 with it (the fusion node sends them before the odometry has the scan's pose), moved into the odometry frame by the pose
 at their stamp, and the scan's pose from the odometry of the one before and the flow's ego motion over the pair (or the
 newest odometry), carried forward to now by the commands sent since (`plan_on: odometry`: one plan per odometry). While
-the clock runs, a control period without a plan plans again from the newest inputs, so a scan the chain drops does not
-skip a command. The fail safe (the core's
+the clock runs, two control periods without a plan plan again from the newest inputs, so a scan the chain drops does
+not leave the car without a command. The fail safe (the core's
 `failsafe`): when odometry or obstacles are older than two sensor periods by the node's clock, or silent for
 `failsafe.silent_after_s` by the steady clock, every tick and a watchdog on both clocks brake, each command slower than
 the last, down to zero, said on /ssf/planner_state (reason stale_odometry, stale_obstacles, deadline, ...) and in one
@@ -169,7 +169,7 @@ class PlannerNode(Node):
         """The odometry of the scan after `stamp_ns` from the newest odometry, when it is that scan's, and the flow's
         ego motion over the pair (None without either, or without the sensor's mount)."""
         ego = self.egos.get(stamp_ns)
-        if self.config.plan_on is not PlanTrigger.SCAN or ego is None or self.odometry is None:
+        if ego is None or self.odometry is None:  # (ego motions are kept only when planning on scans)
             return None
         mount = self.mounts.get(ego.frame_id)
         if mount is None or self.odometry.stamp_ns != stamp_ns:
