@@ -14,6 +14,7 @@ from typing import NoReturn, Sequence
 from ssf_bringup.commands import register
 from ssf_common.command_groups import CommandGroups
 from ssf_common.errors import SsfError
+from ssf_common.heap import hold_freed_memory
 from ssf_common.interrupts import interruptible
 
 COMMANDS_GROUP = "ssf.commands"
@@ -61,6 +62,7 @@ def _group(top: argparse._SubParsersAction, name: str, help_text: str) -> argpar
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one `ssf` command; user errors print one line and exit 2."""
     interruptible()
+    hold_freed_memory()  # what the nodes do: the in-process stages and benches run as they would in them
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

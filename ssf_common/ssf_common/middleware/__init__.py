@@ -10,6 +10,7 @@ import sys
 from collections.abc import Callable, Sequence
 
 from ssf_common.errors import SsfError
+from ssf_common.heap import hold_freed_memory
 from ssf_common.interrupts import interruptible
 from ssf_common.middleware.node import (
     Clock,
@@ -70,6 +71,7 @@ def run(node_factory: Callable[..., Node], argv: Sequence[str] | None = None) ->
 
     Exit status: 2 when the node could not be built (bad parameters or files), else the node's `exit_code`."""
     interruptible()
+    hold_freed_memory()
     args = list(sys.argv[1:] if argv is None else argv)
     try:
         node = node_factory(argv=args)
