@@ -93,7 +93,7 @@ class ScanMatcher:
                         self.config.refine_iterations, ordered)
 
     def align(self, source: np.ndarray, initial: np.ndarray | None = None, ordered: bool = False,
-              prior: np.ndarray | None = None) -> np.ndarray:
+              prior: np.ndarray | None = None, restarts: bool = True) -> np.ndarray:
         """Transform T (4x4) that maps source points onto the target surfaces, robust to outliers.
 
         A refinement that walks away from its coarse start by more than refine_distance, or ends that far from `prior`
@@ -102,12 +102,13 @@ class ScanMatcher:
         scan, ground rings that look the same wherever the sensor is, and objects moving with it, can pull the
         refinement to no motion).
         ordered: the source is already in random order and each stage uses its first points, so that leaving a few
-        points out (a motion mask) keeps the others' subsets, and the answer moves only as much as those points weigh."""
+        points out (a motion mask) keeps the others' subsets, and the answer moves only as much as those points weigh.
+        restarts=False: the first refinement is the answer, trusted or not (an alignment made only to judge another)."""
         start = self.coarse(source, initial, ordered)
         first = self.refined(source, start, ordered)
         distance = self.config.refine_distance
         trusted = same_motion(first.transform, start, distance)
-        if trusted and (prior is None or same_motion(first.transform, prior, distance)):
+        if not restarts or trusted and (prior is None or same_motion(first.transform, prior, distance)):
             return first.transform
         starts = [self.coarse(source, initial, ordered, sample) for sample in range(1, self.config.coarse_samples)]
         starts += [] if prior is None else [np.asarray(prior, dtype=np.float64)]

@@ -32,23 +32,30 @@ def pair_ego_motion(state: PairState, dynamic: np.ndarray | None, config: RigidC
     if config.ego_vouch and state.prior is not None and plausible(masked, state.prior, share, config):
         state.ego = masked
         return state.ego
-    base = every_point(state)
+    # made only to judge the masked one: where that one is a change of the previous pair's motion a vehicle can make,
+    # restarting this one (from the other samples and that motion) cannot change the answer beyond a narrow case
+    base = every_point(state, restarts=config.ego_judge_restarts or not steady(masked, state.prior, config))
     vouched = motion_gap(masked, base) <= config.ego_tolerance or (
         state.prior is not None and nearer_prior(masked, base, state.prior, config, share))
     state.ego = masked if vouched else base
     return state.ego
 
-def every_point(state: PairState) -> np.ndarray:
-    """The ego motion aligned on every point of the pair (once per pair)."""
+def every_point(state: PairState, restarts: bool = True) -> np.ndarray:
+    """The ego motion aligned on every point of the pair (once per pair; `restarts`: see ScanMatcher.align)."""
     if state.base_ego is None:
-        state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior)
+        state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior,
+                                             restarts=restarts)
     return state.base_ego
 
 def plausible(motion: np.ndarray, prior: np.ndarray, dynamic_share: float, config: RigidConfig) -> bool:
     """Whether a motion is a change of the previous pair's that a vehicle can make in dt (ego_max_accel), aligned
     while the mask leaves most of the points to it (ego_mask_share)."""
-    return (motion_gap(motion, prior) <= config.ego_max_accel * config.scan_period ** 2
-            and dynamic_share <= config.ego_mask_share)
+    return steady(motion, prior, config) and dynamic_share <= config.ego_mask_share
+
+
+def steady(motion: np.ndarray, prior: np.ndarray | None, config: RigidConfig) -> bool:
+    """Whether a motion is a change of the previous pair's (None: none) that a vehicle can make in dt."""
+    return prior is not None and motion_gap(motion, prior) <= config.ego_max_accel * config.scan_period ** 2
 
 def nearer_prior(masked: np.ndarray, base: np.ndarray, prior: np.ndarray, config: RigidConfig,
                  dynamic_share: float = 0.0) -> bool:
