@@ -239,6 +239,7 @@ class SimBridgeNode(Node):
     def _publish(self, frame: Frame, previous: Frame | None = None) -> None:
         stamp = frame.stamp_ns
         self.pub_clock.publish(ros_messages.clock(stamp))
+        self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))  # first: the whole graph waits for it
         self.pub_tf.publish(ros_messages.transforms(frame.base_pose, frame.pose, stamp))
         self.pub_odom.publish(ros_messages.odometry(frame.base_pose, frame.ego, stamp))
         if frame.measured is not None:
@@ -250,7 +251,6 @@ class SimBridgeNode(Node):
             self.pub_markers.publish(ros_messages.markers(frame.agents, stamp))
         if previous is not None and self.pub_truth.get_subscription_count() and frame.flow is not None:
             self.pub_truth.publish(ros_messages.truth_cloud(previous.scan, frame.flow, previous.stamp_ns))
-        self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))
         if frame.index % 10 == 0:
             self.pub_episode.publish(self._result(frame))
         self.published_at = time.monotonic()

@@ -163,3 +163,49 @@ def test_the_alignment_without_movers_wins_where_only_it_is_a_change_a_vehicle_c
     faster = RigidConfig(scan_period=0.05)  # at 20 Hz a vehicle changes 4 times less
     assert not nearer_prior(forward(0.060), base, prior, faster)
     assert not nearer_prior(forward(0.090), base, prior, config, dynamic_share=0.6)  # a mask hiding most of the scan
+
+
+def test_an_alignment_without_restarts_is_its_first_refinement_trusted_or_not(pair):
+    """Far from the `prior`, an alignment restarts from the other samples and the prior; without restarts it is the
+    refinement from its coarse start, as that start's alignment with restarts would be near the prior."""
+    matcher = ScanMatcher(pair.pc2, RegistrationConfig(source_points=512, refine_points=2048))
+    source = pair.pc1[np.random.default_rng(1).permutation(len(pair.pc1))]
+    calls = []
+    refined = matcher.refined
+    matcher.refined = lambda *args, **kwargs: calls.append(1) or refined(*args, **kwargs)
+    far = make_pose(5.0, 0.0, 0.0, 0.0)
+    once = matcher.align(source, ordered=True, prior=far, restarts=False)
+    assert len(calls) == 1
+    np.testing.assert_allclose(once, matcher.align(source, ordered=True), atol=1e-9)
+    matcher.align(source, ordered=True, prior=far)
+    assert len(calls) > 3  # 1 + the first again, the other samples' and the prior's
+
+
+def test_the_alignment_that_only_judges_a_steady_masked_one_is_not_restarted():
+    """Where the mask calls most points dynamic, the alignment without them is judged against the one on every point;
+    that one restarts only where the masked one is no change of the previous pair's motion a vehicle can make."""
+    from types import SimpleNamespace
+
+    from ssf_flow_node.core.rigid import RigidConfig
+    from ssf_flow_node.core.rigid.ego import pair_ego_motion
+
+    prior = make_pose(-0.5, 0.0, 0.0, 0.0)
+
+    def restarts_of_the_judge(masked: np.ndarray, config: RigidConfig) -> bool:
+        asked = []
+
+        def align(source, initial=None, ordered=False, prior=None, restarts=True):
+            asked.append(restarts)
+            return masked if len(asked) == 1 else make_pose(0.0, 0.0, 0.0, 0.0)  # the judge: pulled to standing still
+
+        state = SimpleNamespace(source=np.zeros((100, 3)), order=np.arange(100), prior=prior, base_ego=None, ego=None,
+                                matcher=SimpleNamespace(align=align))
+        dynamic = np.arange(100) < 60  # most points: beyond ego_mask_share, so the masked one is never taken at once
+        pair_ego_motion(state, dynamic, config)
+        assert len(asked) == 2
+        return asked[1]
+
+    config = RigidConfig()
+    assert not restarts_of_the_judge(make_pose(-0.51, 0.0, 0.0, 0.0), config)  # 1 cm from constant velocity
+    assert restarts_of_the_judge(make_pose(-0.2, 0.0, 0.0, 0.0), config)  # 30 cm in 0.1 s: no vehicle does that
+    assert restarts_of_the_judge(make_pose(-0.51, 0.0, 0.0, 0.0), RigidConfig(ego_judge_restarts=True))
