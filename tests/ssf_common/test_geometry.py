@@ -439,3 +439,17 @@ def test_one_voxel_key_gives_the_codes_the_map_and_the_trails_had(dtype):
     trail = (np.floor(points[:, :2] / 0.25).astype(np.int64) + (1 << 30))
     np.testing.assert_array_equal(voxel_keys(points[:, :2], 0.25, 31), (trail[:, 0] << 31) | trail[:, 1])
 
+
+
+def test_tukey_icp_without_matches_or_constraints_leaves_the_start():
+    """Nothing within the gate: no step at all; a single match cannot fix six parameters: a least-norm step, finite."""
+    from ssf_common.geometry.registration import PlaneTarget, tukey_icp
+
+    target = PlaneTarget.build(np.array([[10.0, 0.0, 0.0], [10.0, 1.0, 0.0], [10.0, 0.0, 1.0]]),
+                               np.tile([1.0, 0.0, 0.0], (3, 1)))
+    far = tukey_icp(np.zeros((5, 3)), target, np.eye(4), distance=1.0, iterations=10, tolerance=1e-6)
+    np.testing.assert_array_equal(far.transform, np.eye(4))
+    assert far.fitness == 0.0 and far.inliers == 0
+    one = tukey_icp(np.array([[9.9, 0.0, 0.0], [0.0, 0.0, 0.0]]), target, np.eye(4), 1.0, 10, 1e-6)
+    assert np.isfinite(one.transform).all() and one.fitness == 0.5
+    assert one.transform[0, 3] == pytest.approx(0.1, abs=1e-6)  # onto the plane x = 10 along its normal

@@ -60,3 +60,33 @@ def test_each_icp_backend_finds_a_known_motion_from_a_close_start(sparse_pair, b
     found = matcher.refine(source, make_pose(-0.5))
     assert np.linalg.norm(found[:3, 3] - truth[:3, 3]) < 0.02
     assert matcher.refined(source, found).fitness > 0.6  # all but the ground rings, which drive with the sensor
+
+
+
+def corner(rng: np.random.Generator, count: int) -> np.ndarray:
+    """Points on a street corner: the ground, two walls at an angle and a box (no two points alike)."""
+    ground = np.column_stack([rng.uniform(-20, 20, count), rng.uniform(-20, 20, count), rng.normal(-1.7, 0.01, count)])
+    wall = np.column_stack([rng.uniform(-20, 20, count), rng.normal(6.0, 0.01, count), rng.uniform(-1.7, 2.0, count)])
+    side = np.column_stack([rng.normal(12.0, 0.01, count), rng.uniform(-20, 6, count), rng.uniform(-1.7, 2.0, count)])
+    box = rng.uniform([3.0, -3.0, -1.7], [5.0, -1.0, -0.2], (count, 3))
+    return np.concatenate([ground, wall, side, box])
+
+
+@pytest.mark.parametrize("distance", [2.0, 0.2])
+def test_the_shared_layers_icp_gives_open3ds_answers(distance):
+    """`plane` runs Open3D's algorithm on a KD-tree built once: the same transform and matched share, step by step."""
+    rng = np.random.default_rng(3)
+    target = corner(rng, 1500)
+    motion = make_pose(-0.45, 0.05, 0.0, 0.02)
+    source = corner(rng, 500) @ motion[:3, :3].T + motion[:3, 3]  # other samples of the same surfaces, moved
+    config = RegistrationConfig(tolerance=1e-6)
+    plane = ScanMatcher(target, config.model_copy(update={"backend": IcpBackend.PLANE}))
+    open3d = ScanMatcher(target, config.model_copy(update={"backend": IcpBackend.OPEN3D}))
+    for start, iterations in ((make_pose(0.4, -0.05, 0.0, -0.02), 30), (np.eye(4), 30), (np.eye(4), 2)):
+        ours = plane.fit(source, start, len(source), distance, iterations)
+        theirs = open3d.fit(source, start, len(source), distance, iterations)
+        np.testing.assert_allclose(ours.transform, theirs.transform, atol=1e-9)
+        assert ours.fitness == pytest.approx(theirs.fitness, abs=1e-12)
+        assert ours.inliers == theirs.inliers and ours.rmse == pytest.approx(theirs.rmse, rel=1e-9)
+        if start[0, 3] > 0:  # from near the truth: onto it
+            assert np.abs(ours.transform @ motion - np.eye(4)).max() < 0.01

@@ -10,7 +10,7 @@ from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.se3 import invert, make_pose, rotation_angle, transform_points
 from ssf_common.scans import read_scan
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, OdomMethod, make_odometry
-from ssf_odom_node.core.registration import (PlaneTarget, estimate_normals, flow_transform, normals_among,
+from ssf_common.geometry.registration import (PlaneTarget, estimate_normals, flow_transform, normals_among,
                                               point_to_plane, steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap
 

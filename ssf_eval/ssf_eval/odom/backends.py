@@ -10,7 +10,7 @@ import numpy as np
 
 from ssf_common.geometry.se3 import invert
 from ssf_odom_node.core.odometry import OdomInput, Odometry
-from ssf_odom_node.core.registration import PlaneTarget, point_to_plane
+from ssf_common.geometry.registration import PlaneTarget, point_to_plane
 
 BACKENDS = ("numpy", "open3d", "small_gicp")
 

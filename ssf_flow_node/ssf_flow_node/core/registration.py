@@ -1,22 +1,23 @@
-"""Ego motion between two scans by robust coarse-to-fine point-to-plane ICP (Open3D, or small_gicp with the target's
-KD-tree built once)."""
+"""Ego motion between two scans by robust coarse-to-fine point-to-plane ICP: Open3D's algorithm on the shared
+registration layer (the target's normals and KD-tree built once), or Open3D's or small_gicp's own."""
 
 from __future__ import annotations
 
 from enum import Enum
-from typing import NamedTuple
 
 import numpy as np
 import small_gicp
 from pydantic import Field
 
 from ssf_common.config import Section
+from ssf_common.geometry.registration import Alignment, PlaneTarget, tukey_icp
 
 
 class IcpBackend(str, Enum):
     """Which library runs the point-to-plane ICP."""
 
-    OPEN3D = "open3d"  # Tukey kernel of half the correspondence distance; the target's KD-tree built on every call
+    PLANE = "plane"  # Open3D's ICP (Tukey kernel of half the distance) on the target's KD-tree built once: its answers
+    OPEN3D = "open3d"  # Open3D's registration_icp itself, which builds the target's KD-tree again on every call
     SMALL_GICP = "small_gicp"  # correspondences cut at half the distance; the target's KD-tree and normals built once
 
 
@@ -39,18 +40,12 @@ class RegistrationConfig(Section):
     coarse_samples: int = Field(5, ge=1, description="random samples the coarse stages may run on: where the "
                                 "refinement walks away from the first one's answer, the others' answers are "
                                 "refined too and the one that brings most points within refine_distance wins")
-    backend: IcpBackend = Field(IcpBackend.OPEN3D, description="ICP library: open3d, or small_gicp (faster, the target's "
-                                "KD-tree built once, but its hard correspondence cut instead of Open3D's Tukey kernel "
-                                "doubles the static EPE on whole scans: docs/realtime.md; it stops on its own "
-                                "small-update test, so `tolerance` does not apply)")
+    backend: IcpBackend = Field(IcpBackend.PLANE, description="ICP: plane (Open3D's algorithm on the shared registration "
+                                "layer, the target's KD-tree built once: Open3D's answers to 1e-15, a third faster), "
+                                "open3d (registration_icp itself), or small_gicp (faster still, but its hard "
+                                "correspondence cut instead of the Tukey kernel doubles the static EPE on whole scans: "
+                                "docs/realtime.md; it stops on its own small-update test, so `tolerance` does not apply)")
     seed: int = 0
-
-
-class IcpAlignment(NamedTuple):
-    """A transform (4x4) and the share of the ICP's points it brings within the correspondence distance."""
-
-    transform: np.ndarray
-    fitness: float
 
 
 def to_cloud(points: np.ndarray):
@@ -66,8 +61,7 @@ class ScanMatcher:
     def __init__(self, target: np.ndarray, config: RegistrationConfig) -> None:
         self.config = config
         self.usable = target.shape[0] >= 10
-        self.icp = (SmallGicpTarget if config.backend is IcpBackend.SMALL_GICP else Open3dTarget)(
-            np.asarray(target, dtype=np.float64), config.normal_neighbours, self.usable)
+        self.icp = TARGETS[config.backend](np.asarray(target, dtype=np.float64), config.normal_neighbours, self.usable)
 
     def normals(self) -> np.ndarray:
         """Unit normals (N, 3) of the target points (zeros when the target was too small)."""
@@ -87,7 +81,7 @@ class ScanMatcher:
         """Transform T (4x4) near `initial` that maps source points accurately onto the target surfaces."""
         return self.refined(source, initial, ordered).transform
 
-    def refined(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> IcpAlignment:
+    def refined(self, source: np.ndarray, initial: np.ndarray, ordered: bool = False) -> Alignment:
         """The refinement from `initial`, with the share of its points it brings within refine_distance."""
         return self.fit(source, initial, self.config.refine_points, self.config.refine_distance,
                         self.config.refine_iterations, ordered)
@@ -116,12 +110,12 @@ class ScanMatcher:
         return max(candidates, key=lambda fit: fit.fitness).transform
 
     def fit(self, source: np.ndarray, initial: np.ndarray, points: int, distance: float, iterations: int,
-            ordered: bool = False, sample: int = 0) -> IcpAlignment:
+            ordered: bool = False, sample: int = 0) -> Alignment:
         """Point-to-plane ICP with a Tukey kernel of half the correspondence distance, on up to `points` points (the
         `sample`-th random sample: ordered sources use their `sample`-th run of `points`)."""
         transform = np.asarray(initial, dtype=np.float64)
         if source.shape[0] < 10 or not self.usable:
-            return IcpAlignment(transform, 0.0)
+            return Alignment(transform, np.eye(6), 0, 0.0, 0)
         if source.shape[0] > points:
             source = source[(sample * points + np.arange(points)) % source.shape[0]] if ordered else source[
                 source_sample(source.shape[0], points, self.config.seed, sample)]
@@ -129,7 +123,8 @@ class ScanMatcher:
 
 
 class Open3dTarget:
-    """Open3D's point-to-plane ICP with a Tukey kernel of half the correspondence distance."""
+    """Open3D's point-to-plane ICP with a Tukey kernel of half the correspondence distance, against a target whose
+    normals Open3D estimates once."""
 
     def __init__(self, target: np.ndarray, neighbours: int, usable: bool) -> None:
         import open3d as o3d
@@ -144,7 +139,7 @@ class Open3dTarget:
         return normals if len(normals) else np.zeros((len(self.cloud.points), 3))
 
     def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
-            tolerance: float) -> IcpAlignment:
+            tolerance: float) -> Alignment:
         """ICP from `initial`; fitness: the share of source points within `distance`."""
         import open3d as o3d
 
@@ -154,7 +149,22 @@ class Open3dTarget:
             pipelines.TransformationEstimationPointToPlane(pipelines.TukeyLoss(k=distance / 2.0)),
             pipelines.ICPConvergenceCriteria(tolerance, tolerance, iterations),
         )
-        return IcpAlignment(np.asarray(result.transformation), float(result.fitness))
+        return Alignment(np.asarray(result.transformation), np.eye(6), len(result.correspondence_set),
+                         float(result.inlier_rmse), 0, fitness=float(result.fitness))
+
+
+class PlaneIcpTarget(Open3dTarget):
+    """Open3D's ICP run on the shared registration layer (`tukey_icp`) against the target's normals (Open3D's, as
+    before) and a KD-tree built once, where Open3D builds its tree again on every call."""
+
+    def __init__(self, target: np.ndarray, neighbours: int, usable: bool) -> None:
+        super().__init__(target, neighbours, usable)
+        self.target = PlaneTarget.build(target, self.normals()) if usable else None
+
+    def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
+            tolerance: float) -> Alignment:
+        """ICP from `initial`; fitness: the share of source points within `distance`."""
+        return tukey_icp(source, self.target, initial, distance, iterations, tolerance)
 
 
 class SmallGicpTarget:
@@ -173,14 +183,18 @@ class SmallGicpTarget:
         return np.asarray(self.cloud.normals())[:, :3] if self.tree is not None else np.zeros((self.count, 3))
 
     def fit(self, source: np.ndarray, initial: np.ndarray, distance: float, iterations: int,
-            tolerance: float) -> IcpAlignment:
+            tolerance: float) -> Alignment:
         """ICP from `initial` (small_gicp stops on its own small-update test: `tolerance` does not apply); fitness:
         the share of source points within half the distance."""
         result = small_gicp.align(self.cloud, small_gicp.PointCloud(np.asarray(source, dtype=np.float64)),
                                        self.tree, np.asarray(initial, dtype=np.float64), registration_type="PLANE_ICP",
                                        max_correspondence_distance=distance / 2.0, num_threads=1,
                                        max_iterations=iterations)
-        return IcpAlignment(np.asarray(result.T_target_source), result.num_inliers / max(source.shape[0], 1))
+        return Alignment(np.asarray(result.T_target_source), np.eye(6), int(result.num_inliers), float(result.error),
+                         int(result.iterations), fitness=result.num_inliers / max(source.shape[0], 1))
+
+
+TARGETS = {IcpBackend.PLANE: PlaneIcpTarget, IcpBackend.OPEN3D: Open3dTarget, IcpBackend.SMALL_GICP: SmallGicpTarget}
 
 
 def source_sample(count: int, points: int, seed: int, sample: int) -> np.ndarray:

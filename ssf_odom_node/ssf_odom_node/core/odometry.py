@@ -18,7 +18,7 @@ from ssf_common.geometry.neighbours import PointIndex
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import interpolate_poses, invert, rotation_angle, transform_points, yaw_matrix
 from ssf_common.geometry.sweep import check_time, deskew, planar, timed
-from ssf_odom_node.core.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
+from ssf_common.geometry.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
                                              normals_among, point_to_plane, steep_support)
 from ssf_odom_node.core.static_map import MapConfig, VoxelMap, above_ground
 

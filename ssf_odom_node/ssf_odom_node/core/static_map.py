@@ -16,7 +16,7 @@ from pydantic import Field, model_validator
 from ssf_common.config import Section
 from ssf_common.geometry.sampling import voxel_keys
 from ssf_common.geometry.se3 import invert
-from ssf_odom_node.core.registration import PlaneTarget
+from ssf_common.geometry.registration import PlaneTarget
 
 KEY_BITS = 21  # per axis: +-1M voxels, packed into one int64 code
 BYTES_PER_VOXEL = 3 * 4 + 3 * 4 + 8 + 2 + 4 + 1  # float32 point and normal, int64 code, evidence, first scan, confirmed

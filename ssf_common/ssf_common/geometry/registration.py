@@ -1,5 +1,7 @@
-"""Rigid registration pieces of the odometry: surface normals, the flow-based initial transform (weighted Kabsch)
-and robust point-to-plane Gauss-Newton against a target with normals, with the covariance from its Hessian."""
+"""Rigid registration against surfaces, shared by the flow (scan to scan) and the odometry (scan to map): a target of
+points with normals and its KD-tree built once, surface normals, one Alignment type, Open3D's point-to-plane ICP
+(`tukey_icp`), robust point-to-plane Gauss-Newton with the covariance from its Hessian (`point_to_plane`), and the
+flow-based initial transform (weighted Kabsch)."""
 
 from __future__ import annotations
 
@@ -38,10 +40,12 @@ class Alignment(NamedTuple):
     transform: np.ndarray  # (4, 4)
     covariance: np.ndarray  # (6, 6), translation first (the order of ROS pose covariances)
     inliers: int  # points matched within the gate on the last iteration
-    rmse: float  # weighted RMS point-to-plane residual (m) on the last iteration
+    rmse: float  # RMS residual (m) on the last iteration: point-to-plane, weighted (`point_to_plane`), or the matched
+    # points' distances (`tukey_icp`, as Open3D reports it)
     iterations: int
     lift: float = 0.0  # where fitted (`shares`): the height (sensor frame, m) a point gains per sweep period before
     # the stamp, i.e. how far the sensor sank over one sweep; 0 where not fitted
+    fitness: float = 0.0  # the share of the source points matched within the gate on the last iteration
 
 
 def estimate_normals(points: np.ndarray, neighbours: int = 8, at: np.ndarray | None = None) -> np.ndarray:
@@ -150,6 +154,63 @@ def point_to_plane(source: np.ndarray, weights: np.ndarray | None, target: Plane
         if np.abs(step).max() < tolerance:
             break
     return Alignment(transform, plane_covariance(hessian, rmse, inliers)[:6, :6], inliers, rmse, done, lift)
+
+
+def tukey_icp(source: np.ndarray, target: PlaneTarget, initial: np.ndarray, distance: float, iterations: int,
+              tolerance: float) -> Alignment:
+    """Open3D's point-to-plane ICP (`registration_icp` with a Tukey kernel of half the correspondence distance: the
+    same steps, answers equal to 1e-15) on the target's KD-tree built once instead of at every call: each iteration
+    matches every source point to its nearest target point within `distance`, takes the weighted Gauss-Newton step
+    (rotation as roll, pitch, yaw) and stops once the matched share and the matched points' RMS distance change by less
+    than `tolerance`."""
+    transform = np.asarray(initial, dtype=np.float64).copy()
+    source = np.asarray(source, dtype=np.float64)
+    moved = source @ transform[:3, :3].T + transform[:3, 3]
+    matches = _matches(moved, target, distance)
+    hessian, kernel, done = np.zeros((6, 6)), distance / 2.0, 0
+    for done in range(1, iterations + 1):
+        found, index = matches[0], matches[1]
+        if found.size == 0:  # nothing matched: Open3D's step is no motion, and so would every next one be
+            break
+        x, n = moved.take(found, axis=0), target.normals.take(index, axis=0)
+        residual = np.einsum("ij,ij->i", x - target.points.take(index, axis=0), n)
+        weight = np.where(np.abs(residual) <= kernel, (1.0 - (residual / kernel) ** 2) ** 2, 0.0)
+        jacobian = np.hstack([np.cross(x, n), n])  # d residual / d (roll, pitch, yaw, translation)
+        weighted = (jacobian * weight[:, None]).T
+        hessian = weighted @ jacobian
+        try:
+            twist = np.linalg.solve(hessian, -(weighted @ residual))
+        except np.linalg.LinAlgError:  # fewer constraints than parameters: the least-norm step
+            twist = np.linalg.lstsq(hessian, -(weighted @ residual), rcond=None)[0]
+        step = euler_transform(twist)
+        transform = step @ transform
+        moved = moved @ step[:3, :3].T + step[:3, 3]
+        before, matches = matches, _matches(moved, target, distance)
+        if abs(before[2] - matches[2]) < tolerance and abs(before[3] - matches[3]) < tolerance:
+            break
+    rmse = matches[3]
+    covariance = plane_covariance(hessian, rmse, matches[0].size)[np.ix_([3, 4, 5, 0, 1, 2], [3, 4, 5, 0, 1, 2])]
+    return Alignment(transform, covariance, int(matches[0].size), rmse, done, fitness=matches[2])
+
+
+def _matches(moved: np.ndarray, target: PlaneTarget, distance: float) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """The source points with a target point within `distance`, those target points, their share and RMS distance."""
+    gap, index = target.tree.query(moved, distance_upper_bound=distance)
+    found = np.flatnonzero(np.isfinite(gap))
+    if found.size == 0:
+        return found, index[found], 0.0, 0.0
+    return found, index[found], found.size / max(len(moved), 1), float(np.sqrt(np.mean(gap[found] ** 2)))
+
+
+def euler_transform(twist: np.ndarray) -> np.ndarray:
+    """4x4 transform of (roll, pitch, yaw, x, y, z): rotation Rz(yaw) Ry(pitch) Rx(roll), as Open3D's ICP steps."""
+    (ca, cb, cg), (sa, sb, sg) = np.cos(twist[:3]), np.sin(twist[:3])
+    transform = np.eye(4)
+    transform[:3, :3] = [[cg * cb, -sg * ca + cg * sb * sa, sg * sa + cg * sb * ca],
+                         [sg * cb, cg * ca + sg * sb * sa, -cg * sa + sg * sb * ca],
+                         [-sb, cb * sa, cb * ca]]
+    transform[:3, 3] = twist[3:]
+    return transform
 
 
 def steep_support(points: np.ndarray, transform: np.ndarray, target: PlaneTarget, gate: float = 0.5,
