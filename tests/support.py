@@ -1,4 +1,5 @@
-"""Helpers shared by tests: ROS 2 types written by hand from the IDL (no project code), polling, and swept scans."""
+"""Helpers shared by tests: ROS 2 types written by hand from the IDL (no project code), polling, random point
+records and swept scans."""
 
 import time
 from dataclasses import dataclass
@@ -67,6 +68,21 @@ def wait_until(predicate, timeout_s: float = 20.0) -> bool:
 
 
 SWEEP_PERIOD, SWEEP_SPEED = 0.1, 10.0  # s, m/s: a swept sensor drives 1 m while it turns
+
+
+def random_points(dtype: np.dtype, shape, seed: int = 0, scale: float = 20.0) -> np.ndarray:
+    """Random values for every field of a structured dtype (floats normal of `scale`, integers over their whole
+    range), padding bytes zero."""
+    rng = np.random.default_rng(seed)
+    points = np.zeros(shape, dtype=dtype)
+    for name in dtype.names:
+        field = points[name]
+        if field.dtype.kind == "f":
+            field[...] = rng.normal(scale=scale, size=field.shape)
+        else:
+            native = field.dtype.base.newbyteorder("=")
+            field[...] = rng.integers(np.iinfo(native).min, np.iinfo(native).max, field.shape, native, endpoint=True)
+    return points
 
 
 def azimuth_times(xyz: np.ndarray) -> np.ndarray:

@@ -13,7 +13,7 @@ NODE_PACKAGES = ("sim_bridge", "ssf_flow_node", "ssf_seg_node", "ssf_odom_node",
 ABOVE_COMMON = NODE_PACKAGES + ("ssf_eval", "ssf_bringup")
 CORE_LIBRARIES = {"numpy", "scipy", "torch", "sklearn", "open3d", "casadi", "pydantic", "small_gicp"}
 CORE_COMMON = ("ssf_common.config", "ssf_common.errors", "ssf_common.geometry", "ssf_common.dataset", "ssf_common.records",
-               "ssf_common.checkpoints", "ssf_common.interrupts",  # interrupts: a training loop stops cleanly
+               "ssf_common.checkpoints", "ssf_common.training",  # training: the one step loop every trainer runs
                "ssf_common.temporal_prior")  # the prior M^(0) crosses from the fusion core to the flow node
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from ssf_common.errors import DataError
+from ssf_common.paths import read_input
 
 NUMERIC_KINDS = "biuf"  # bool, int, uint, float
 _KIND_NAMES = {"b": "bool", "i": "int", "u": "uint", "f": "float", "c": "complex", "U": "str", "S": "bytes",
@@ -62,14 +63,7 @@ def read_array(
     Every failure is one DataError line naming the file and what it holds.
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such {what} file") from None
-    except IsADirectoryError:
-        raise DataError(f"{path}: is a folder, not a {what} file") from None
-    except OSError as err:
-        raise DataError(f"{path}: cannot read ({err.strerror or type(err).__name__})") from None
+    raw = read_input(path, what)
     try:
         array = load_npy(raw) if path.suffix.lower() == ".npy" else _load_text(raw)
     except NpyFormatError as err:

@@ -1,4 +1,4 @@
-"""Output paths checked before the work starts, and files written with one error line on failure."""
+"""Input files read and output paths checked before the work starts, each failure one error line."""
 
 from __future__ import annotations
 
@@ -9,6 +9,19 @@ from pathlib import Path
 import numpy as np
 
 from ssf_common.errors import DataError
+
+
+def read_input(path: str | Path, what: str = "input") -> bytes:
+    """The bytes of an input file, or one DataError line saying why it cannot be read (missing, a folder, ...)."""
+    path = Path(path)
+    try:
+        return path.read_bytes()
+    except FileNotFoundError:
+        raise DataError(f"{path}: no such {what} file") from None
+    except IsADirectoryError:
+        raise DataError(f"{path}: is a folder, not a {what} file") from None
+    except OSError as err:
+        raise DataError(f"{path}: cannot read ({_reason(err)})") from None
 
 
 def check_writable(path: str | Path, what: str = "output") -> Path:

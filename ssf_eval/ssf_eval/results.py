@@ -8,8 +8,18 @@ from typing import Any
 import yaml
 from pydantic import BaseModel
 
-from ssf_common.errors import DataError
+from ssf_common.errors import ConfigError, DataError
 from ssf_common.jsonio import to_strict, write_json
+
+
+def check_bench_args(args: Any, min_frames: int) -> None:
+    """Fail now, in one line, on a benchmark's --frames below `min_frames` or a --json it cannot write."""
+    from ssf_common.paths import check_writable
+
+    if args.frames < min_frames:
+        raise ConfigError(f"--frames must be at least {min_frames}, got {args.frames}")
+    if args.json is not None:
+        check_writable(args.json, "result file")
 
 
 def plain(value: Any) -> Any:

@@ -9,6 +9,7 @@ import pytest
 from ssf_common import messages, pointcloud, scans
 from ssf_common.errors import MessageError
 from ssf_common.middleware import Node
+from support import random_points
 
 HEADER = messages.header(1_673_400_472_138_016_708, "lidar_top")
 
@@ -36,20 +37,6 @@ LAYOUTS = {
     "count_gt_1": WITH_COUNTS,
     "big_endian": BIG_ENDIAN,
 }
-
-
-def random_points(dtype: np.dtype, shape, seed: int = 0) -> np.ndarray:
-    """Random values for every field, filling padding bytes with zeros."""
-    rng = np.random.default_rng(seed)
-    points = np.zeros(shape, dtype=dtype)
-    for name in dtype.names:
-        field = points[name]
-        if field.dtype.kind == "f":
-            field[...] = rng.normal(scale=20.0, size=field.shape)
-        else:
-            native = field.dtype.base.newbyteorder("=")
-            field[...] = rng.integers(np.iinfo(native).min, np.iinfo(native).max, field.shape, native, endpoint=True)
-    return points
 
 
 def through_cdr(msg):

@@ -7,25 +7,13 @@ import pytest
 
 from ssf_common import scans
 from ssf_common.errors import DataError
+from support import random_points
 
 ALL_PCD_TYPES = np.dtype([
     ("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("intensity", "u1"), ("ring", "<u2"), ("offset", "i1"),
     ("id", "<i2"), ("count", "<i4"), ("flags", "<u4"), ("tick", "<i8"), ("stamp", "<u8"), ("time", "<f8"),
     ("normal", "<f4", (3,)), ("histogram", "<u2", (5,)),
 ])  # fmt: skip
-
-
-def random_points(dtype: np.dtype, count: int, seed: int = 0) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    points = np.zeros(count, dtype=dtype)
-    for name in dtype.names:
-        field = points[name]
-        if field.dtype.kind == "f":
-            field[...] = rng.normal(scale=30.0, size=field.shape)
-        else:
-            native = field.dtype.base.newbyteorder("=")
-            field[...] = rng.integers(np.iinfo(native).min, np.iinfo(native).max, field.shape, native, endpoint=True)
-    return points
 
 
 @pytest.mark.parametrize("encoding", scans.PCD_ENCODINGS)
@@ -238,7 +226,7 @@ def test_broken_scan_files_give_one_line(tmp_path, name, content, problem):
 
 
 def test_missing_file_is_named(tmp_path):
-    with pytest.raises(DataError, match="missing.pcd: no such file"):
+    with pytest.raises(DataError, match="missing.pcd: no such scan file"):
         scans.read_scan(tmp_path / "missing.pcd")
 
 

@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ssf_common.errors import DataError
+from ssf_common.paths import read_input
 from ssf_common.scans.common import XYZ, FormatError
 from ssf_common.scans.kitti_bin import read_kitti_bin, write_bin
 from ssf_common.scans.npy import read_npy
@@ -183,14 +184,7 @@ def read_points(path: str | Path) -> np.ndarray:
     reader = _READERS.get(suffix)
     if reader is None:
         raise DataError(f"{path}: unsupported scan format '{path.suffix}' (supported: {', '.join(_READERS)})")
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise DataError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise DataError(f"{path}: is a folder, not a scan file") from None
-    except OSError as err:
-        raise DataError(f"{path}: cannot read ({err.strerror or err})") from None
+    raw = read_input(path, "scan")
     _check_content(path, suffix, raw)
     try:
         return reader(raw)

@@ -94,16 +94,11 @@ def run_bench_flow(args: argparse.Namespace) -> int:
 
     from ssf_common.dataset.masks import noisy_mask
     from ssf_common.dataset.synthetic import synthetic_pair
-    from ssf_common.errors import ConfigError
-    from ssf_common.paths import check_writable
-    from ssf_eval.results import write_result
+    from ssf_eval.results import check_bench_args, write_result
     from ssf_eval.sources import protocol_from_args, simulator_pairs
     from ssf_flow_node.options import build_estimators, flow_config
 
-    if args.frames < 1:
-        raise ConfigError(f"--frames must be at least 1, got {args.frames}")
-    if args.json:
-        check_writable(args.json, "result file")
+    check_bench_args(args, 1)
     torch.set_num_threads(args.threads)
     whole = args.protocol == "whole"
     estimators = build_estimators(args.estimators, args, skip_missing=False, whole_scans=whole)

@@ -318,18 +318,13 @@ def run_bench_odom(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from ssf_common.errors import ConfigError
-    from ssf_common.paths import check_writable
     from ssf_eval.odom.evaluate import KISS_ICP, KissIcpBaseline
     from ssf_eval.odom.sequence import scenario_of, sim_scans
-    from ssf_eval.results import write_result
+    from ssf_eval.results import check_bench_args, write_result
     from ssf_odom_node.core.odometry import OdomInput, make_odometry
 
     check_methods(args.methods)
-    if args.frames < 2:
-        raise ConfigError(f"--frames must be at least 2, got {args.frames}")
-    if args.json is not None:
-        check_writable(args.json, "result file")
+    check_bench_args(args, 2)
     config = odom_config(args)
     scenario = scenario_of(args.scenario)
     perception = perception_for("noisy", args.seed, perception_overrides(args))

@@ -298,14 +298,10 @@ def run_eval_fusion(args: argparse.Namespace) -> int:
 
 def bench_pairs(args: argparse.Namespace):
     """A few simulator pairs (paper protocol, after the warm-up) to time on."""
-    from ssf_common.errors import ConfigError
-    from ssf_common.paths import check_writable
     from ssf_eval.sources import simulator_pairs
+    from ssf_eval.results import check_bench_args
 
-    if args.frames < 1:
-        raise ConfigError(f"--frames must be at least 1, got {args.frames}")
-    if args.json:
-        check_writable(args.json, "result file")
+    check_bench_args(args, 1)
     return simulator_pairs(args.scenario, 0, max(2, min(args.frames, 5))).pairs
 
 
@@ -354,17 +350,12 @@ def run_bench_fusion(args: argparse.Namespace) -> int:
     import numpy as np
     import torch
 
-    from ssf_common.errors import ConfigError
-    from ssf_common.paths import check_writable
     from ssf_eval.pipeline import PerceptionChain
-    from ssf_eval.results import write_result
+    from ssf_eval.results import check_bench_args, write_result
     from ssf_eval.sources import simulator_pairs
     from sim_bridge.dataset.export import PROTOCOLS
 
-    if args.frames < 2:
-        raise ConfigError(f"--frames must be at least 2, got {args.frames}")
-    if args.json:
-        check_writable(args.json, "result file")
+    check_bench_args(args, 2)
     torch.set_num_threads(args.threads)
     config = perception_config(args)
     pairs = simulator_pairs(args.scenario, 0, args.frames + 1, PROTOCOLS[args.protocol]).pairs

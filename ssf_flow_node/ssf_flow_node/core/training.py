@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from enum import Enum
 from pathlib import Path
 from typing import Callable, NamedTuple
@@ -17,7 +16,7 @@ from ssf_common.dataset.pairs import ScanPair, read_pair
 from ssf_common.errors import DataError
 from ssf_common.geometry.se3 import transform_points, yaw_matrix
 from ssf_common.geometry.torch_ops import gather, batched_knn, mean_nearest_distance
-from ssf_common.interrupts import stop_requests
+from ssf_common.training import StepTrainer
 from ssf_flow_node.core.asf import checkpoint
 from ssf_flow_node.core.asf.estimator import mask_channels
 from ssf_flow_node.core.asf.network import AsfConfig, AsfNet, FlowPyramid
@@ -134,7 +133,7 @@ def flow_self_supervised_loss(pyramid: FlowPyramid, warped1: torch.Tensor, point
     return loss
 
 
-class Trainer:
+class Trainer(StepTrainer):
     """Owns the network, the optimizer, the data and the loop; resumable from its checkpoints."""
 
     def __init__(self, config: TrainConfig, files: list[Path], out: Path, device: str = "cpu",
@@ -147,9 +146,9 @@ class Trainer:
         self.optimizer = torch.optim.AdamW(self.network.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
         decay_steps = max(1, config.decay_samples // config.batch_size)
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, step_size=decay_steps, gamma=config.decay)
-        self.step = 0
-        self.rng = np.random.default_rng(config.seed)
+        super().__init__()
         self.ego_cache: dict[Path, np.ndarray] = {}
+        self.epes: list[float] = []  # each step's full-resolution EPE, for the progress line
 
     @classmethod
     def resume(cls, path: Path, files: list[Path], out: Path, device: str = "cpu", steps: int | None = None,
@@ -161,11 +160,7 @@ class Trainer:
         overrides = {key: value for key, value in (("steps", steps), ("max_minutes", max_minutes)) if value is not None}
         config = TrainConfig.model_validate({**saved.training, **overrides})
         trainer = cls(config, files, out, device, log)
-        trainer.network.load_state_dict(saved.network.state_dict())
-        trainer.optimizer.load_state_dict(saved.state["optimizer"])
-        trainer.scheduler.load_state_dict(saved.state["scheduler"])
-        trainer.step = int(saved.state["step"])
-        trainer.rng = np.random.default_rng([config.seed, trainer.step])
+        trainer.restore(saved.state, saved.network.state_dict())
         return trainer
 
     def ego_of(self, path: Path, pair: ScanPair) -> np.ndarray:
@@ -195,40 +190,22 @@ class Trainer:
                                   self.config.dynamic_weight), epe
         return flow_self_supervised_loss(pyramid, batch.warped1, batch.points2, self.config), epe
 
+    def batch_loss(self) -> torch.Tensor:
+        """The training loss of the next batch (its EPE kept for the progress line)."""
+        loss, epe = self.loss(self.batch())
+        self.epes.append(epe)
+        return loss
+
+    def progress(self, last: int) -> str:
+        """The mean EPE of the last steps."""
+        return f" epe {np.mean(self.epes[-last:]):.4f}"
+
     def save(self) -> None:
         """Write the resumable checkpoint (network config, training config, optimizer state)."""
-        state = {"optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(), "step": self.step}
-        checkpoint.save_asf_checkpoint(self.out, self.network, self.config.model_dump(mode="json"), state)
+        checkpoint.save_asf_checkpoint(self.out, self.network, self.config.model_dump(mode="json"),
+                                       self.optimizer_state())
 
     def run(self) -> FlowTrainResult:
         """Train until `steps` or `max_minutes`, logging progress and saving checkpoints."""
-        torch.set_num_threads(self.config.threads)
-        self.network.train()
-        started = time.monotonic()
-        losses: list[float] = []
-        window: list[float] = []
-        with stop_requests() as stop:
-            while self.step < self.config.steps:
-                loss, epe = self.loss(self.batch())
-                self.optimizer.zero_grad()
-                loss.backward()
-                self.optimizer.step()
-                self.scheduler.step()
-                self.step += 1
-                losses.append(float(loss.detach()))
-                window.append(epe)
-                elapsed = time.monotonic() - started
-                if self.step % self.config.log_every == 0 or self.step == self.config.steps:
-                    self.log(f"step {self.step}/{self.config.steps} loss {np.mean(losses[-self.config.log_every:]):.4f} epe {np.mean(window[-self.config.log_every:]):.4f} "
-                             f"lr {self.scheduler.get_last_lr()[0]:.2e} elapsed {elapsed / 60:.1f} min")
-                if self.step % self.config.checkpoint_every == 0:
-                    self.save()
-                if self.config.max_minutes and elapsed > self.config.max_minutes * 60:
-                    self.log(f"time limit of {self.config.max_minutes} min reached at step {self.step}")
-                    break
-                if stop.is_set():
-                    self.log(f"stopped at step {self.step} by a signal; saving (--resume continues)")
-                    break
-        self.save()
-        self.network.eval()
+        losses = self.run_steps()
         return FlowTrainResult(self.step, losses, self.out)

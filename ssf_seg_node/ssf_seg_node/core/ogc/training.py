@@ -4,7 +4,6 @@ the supervised baseline. Resumable: checkpoints carry the network config, the tr
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Callable, NamedTuple
 
@@ -20,7 +19,7 @@ from ssf_common.errors import DataError
 from ssf_common.geometry.sampling import sample_indices
 from ssf_common.geometry.se3 import rigid_flow, transform_points, yaw_matrix
 from ssf_common.geometry.torch_ops import gather
-from ssf_common.interrupts import stop_requests
+from ssf_common.training import StepTrainer
 from ssf_seg_node.core.geometric import GeometricConfig, fit_ego_motion
 from ssf_seg_node.core.ogc import checkpoint
 from ssf_seg_node.core.ogc.checkpoint import NetworkKind
@@ -168,7 +167,7 @@ def make_seg_sample(item: TrainingPair, config: SegTrainConfig, rng: np.random.G
     return SegSample(points, flow, motion, transform_points(change, pair.pc2[pick2]), pair.dynamic1[pick1].astype(np.float32))
 
 
-class SegTrainer:
+class SegTrainer(StepTrainer):
     """Owns the network, the optimizer, the data and the loop; resumable from its checkpoints."""
 
     def __init__(self, config: SegTrainConfig, files: list[Path], out: Path, validation: list[Path] | None = None,
@@ -183,9 +182,8 @@ class SegTrainer:
         self.network = config.method.build(config.network).to(device)
         self.optimizer = torch.optim.AdamW(self.network.parameters(), lr=config.learning_rate, weight_decay=config.weight_decay)
         self.scheduler = torch.optim.lr_scheduler.StepLR(self.optimizer, step_size=config.decay_steps, gamma=config.decay)
-        self.step = 0
+        super().__init__()
         self.history: list[tuple[int, float, float]] = []
-        self.rng = np.random.default_rng(config.seed)
         self.ego_fit = GeometricConfig()
         self.cache: dict[Path, TrainingPair] = {}
 
@@ -200,12 +198,8 @@ class SegTrainer:
         overrides = {key: value for key, value in (("steps", steps), ("max_minutes", max_minutes)) if value is not None}
         config = SegTrainConfig.model_validate({**saved.training, **overrides})
         trainer = cls(config, files, out, validation, device, log)
-        trainer.network.load_state_dict(saved.network.state_dict())
-        trainer.optimizer.load_state_dict(saved.state["optimizer"])
-        trainer.scheduler.load_state_dict(saved.state["scheduler"])
-        trainer.step = int(saved.state["step"])
+        trainer.restore(saved.state, saved.network.state_dict())
         trainer.history = [tuple(row) for row in saved.state.get("validation", [])]
-        trainer.rng = np.random.default_rng([config.seed, trainer.step])
         return trainer
 
     def training_pair(self, path: Path) -> TrainingPair:
@@ -249,48 +243,34 @@ class SegTrainer:
         self.network.train()
         return Scores(*(float(value) for value in np.mean(np.array(scores), axis=0)))
 
+    def batch_loss(self) -> torch.Tensor:
+        """The training loss of the next batch."""
+        return self.loss(self.batch())
+
+    def clip_gradients(self) -> None:
+        """Bound the gradients' norm to clip_norm (when set)."""
+        if self.config.clip_norm:
+            torch.nn.utils.clip_grad_norm_(self.network.parameters(), self.config.clip_norm)
+
+    def after_step(self) -> None:
+        """Validate every validate_every steps and at the last."""
+        if self.step % self.config.validate_every == 0 or self.step == self.config.steps:
+            self.log_validation()
+
+    def at_time_limit(self) -> None:
+        """Validate the last weights unless this step just did."""
+        if self.step % self.config.validate_every:
+            self.log_validation()
+
     def save(self) -> None:
         """Write the resumable checkpoint (network config, training config, optimizer state, validation history)."""
-        state = {"optimizer": self.optimizer.state_dict(), "scheduler": self.scheduler.state_dict(), "step": self.step,
-                 "validation": [list(row) for row in self.history]}
+        state = {**self.optimizer_state(), "validation": [list(row) for row in self.history]}
         checkpoint.save_seg_checkpoint(self.out, self.config.method, self.network, self.config.model_dump(mode="json"),
                                        state)
 
     def run(self) -> SegTrainResult:
         """Train until `steps` or `max_minutes`, logging progress, validating and saving checkpoints."""
-        torch.set_num_threads(self.config.threads)
-        self.network.train()
-        started = time.monotonic()
-        losses: list[float] = []
-        with stop_requests() as stop:
-            while self.step < self.config.steps:
-                loss = self.loss(self.batch())
-                self.optimizer.zero_grad()
-                loss.backward()
-                if self.config.clip_norm:
-                    torch.nn.utils.clip_grad_norm_(self.network.parameters(), self.config.clip_norm)
-                self.optimizer.step()
-                self.scheduler.step()
-                self.step += 1
-                losses.append(float(loss.detach()))
-                elapsed = time.monotonic() - started
-                if self.step % self.config.log_every == 0 or self.step == self.config.steps:
-                    self.log(f"step {self.step}/{self.config.steps} loss {np.mean(losses[-self.config.log_every:]):.4f} "
-                             f"lr {self.scheduler.get_last_lr()[0]:.2e} elapsed {elapsed / 60:.1f} min")
-                if self.step % self.config.validate_every == 0 or self.step == self.config.steps:
-                    self.log_validation()
-                if self.step % self.config.checkpoint_every == 0:
-                    self.save()
-                if self.config.max_minutes and elapsed > self.config.max_minutes * 60:
-                    self.log(f"time limit of {self.config.max_minutes} min reached at step {self.step}")
-                    if self.step % self.config.validate_every:
-                        self.log_validation()
-                    break
-                if stop.is_set():
-                    self.log(f"stopped at step {self.step} by a signal; saving (--resume continues)")
-                    break
-        self.save()
-        self.network.eval()
+        losses = self.run_steps()
         return SegTrainResult(self.step, losses, list(self.history), self.out)
 
     def log_validation(self) -> None:
