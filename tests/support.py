@@ -91,24 +91,26 @@ def azimuth_times(xyz: np.ndarray) -> np.ndarray:
     return ((share - 1.0) * SWEEP_PERIOD).astype(np.float32)
 
 
-def swept(world: np.ndarray, stamp_x: float) -> tuple[np.ndarray, np.ndarray]:
-    """A sweep of static world points by a sensor driving along x at SWEEP_SPEED, at stamp_x at its stamp: each point
-    in the sensor frame of its firing time, and that time."""
+def swept(world: np.ndarray, stamp_x: float, speed: float = SWEEP_SPEED) -> tuple[np.ndarray, np.ndarray]:
+    """A sweep of static world points by a sensor driving along x at `speed`, at stamp_x at its stamp: each point in
+    the sensor frame of its firing time, and that time."""
     times = azimuth_times(world - [stamp_x, 0, 0])
     for _ in range(3):  # the azimuth a point is seen at depends on where the sensor is then
-        times = azimuth_times(world - np.c_[stamp_x + SWEEP_SPEED * times, np.zeros((len(world), 2))])
-    return (world - np.c_[stamp_x + SWEEP_SPEED * times, np.zeros((len(world), 2))]).astype(np.float32), times
+        times = azimuth_times(world - np.c_[stamp_x + speed * times, np.zeros((len(world), 2))])
+    return (world - np.c_[stamp_x + speed * times, np.zeros((len(world), 2))]).astype(np.float32), times
 
 
-def swept_stream(seed: int, sweeps: int) -> list[tuple[np.ndarray, np.ndarray]]:
+def swept_stream(seed: int, sweeps: int, speeds: list[float] | None = None) -> list[tuple[np.ndarray, np.ndarray]]:
     """Consecutive sweeps (points and times) of a street (ground, two facades and an end wall) by a sensor driving
-    along it at SWEEP_SPEED."""
+    along it at SWEEP_SPEED, or at speeds[i] during sweep i (it stands at x = 0 at the first stamp)."""
     rng = np.random.default_rng(seed)
     world = np.vstack([np.c_[rng.uniform(-30, 30, (3000, 2)), rng.normal(-1.7, 0.02, 3000)],
                        np.c_[rng.uniform(-30, 30, 1500), np.full(1500, 8.0), rng.uniform(-1.7, 3, 1500)],
                        np.c_[np.full(1500, 25.0), rng.uniform(-8, 8, 1500), rng.uniform(-1.7, 3, 1500)],
                        np.c_[rng.uniform(-30, 30, 1500), np.full(1500, -9.0), rng.uniform(-1.7, 3, 1500)]])
-    return [swept(world, index * SWEEP_SPEED * SWEEP_PERIOD) for index in range(sweeps)]
+    speeds = [SWEEP_SPEED] * sweeps if speeds is None else list(speeds)
+    stamps = np.concatenate([[0.0], np.cumsum(np.asarray(speeds[1:]) * SWEEP_PERIOD)])
+    return [swept(world, stamp, speed) for stamp, speed in zip(stamps, speeds)]
 
 
 def swept_pair(seed: int) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
