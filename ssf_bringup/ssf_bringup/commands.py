@@ -63,9 +63,9 @@ def _register_graph_commands(groups: CommandGroups) -> None:
                       help="record every topic, the fusion loop's intermediate clouds (/ssf/flow of every iteration, "
                       "/ssf/mask, /ssf/mask_hint) and the per-point truth (/sim/ground_truth/flow) included")
     demo.add_argument("--sim-param", action="append", default=[], metavar="NAME:=VALUE",
-                      help="a scenario setting of the simulator, over the graph's (repeatable); the graph casts "
-                      "instant sweeps: --sim-param lidar.rolling_shutter:=true sweeps each LiDAR column at its own time "
-                      "(deskewed by the flow and the odometry; where the car brakes hard the flow's deskew still errs)")
+                      help="a scenario setting of the simulator, over the graph's (repeatable); the graph sweeps each "
+                      "LiDAR column at its own time, deskewed by the flow and the odometry: --sim-param "
+                      "lidar.rolling_shutter:=false casts instant sweeps")
     demo.add_argument("--record", nargs="+", default=[], metavar="TOPIC",
                       help="also record these topics (e.g. /ssf/flow /ssf/mask), and every /ssf/semantic_flow when "
                       "named (by default every other scan's)")

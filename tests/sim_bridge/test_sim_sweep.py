@@ -134,7 +134,7 @@ def test_within_a_sweep_the_sensor_follows_the_egos_arc(small_scenario):
 
 
 def test_rolling_shutter_is_a_scenario_setting_of_the_node_and_of_scenario_files(tmp_path):
-    assert not load_scenario("urban_100").lidar.rolling_shutter  # instant sweeps until deskew exists
+    assert not load_scenario("urban_100").lidar.rolling_shutter  # scenario files: instant (the demo graph turns it on)
     (tmp_path / "rolling.yaml").write_text("agents:\n  count: 0\nlidar:\n  model: vlp16\n  rolling_shutter: true\n")
     assert load_scenario(tmp_path / "rolling.yaml").lidar.spec().rolling_shutter
     small = ["route.waypoints=[[0,0],[60,0]]", "ground.margin=30", "agents.count=0"]

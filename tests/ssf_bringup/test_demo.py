@@ -111,21 +111,26 @@ def test_demo_recording_holds_the_closed_loop(demo_run):
     assert episode[-1].scenario == "urban_100" and abs(episode[-1].time - DURATION_S) < 1e-9
     assert {messages.stamp_ns(f.header.stamp) for f in flow} <= set(scans)  # the flow answers recorded scans
     assert all({"flow_x", "flow_y", "flow_z"} <= {field.name for field in f.fields} for f in flow)
-    swept = decode_cloud(first_scan).time  # an instant sweep by default: no time, or every point at the stamp
-    assert swept is None or not swept.any()
+    swept = decode_cloud(first_scan).time  # a rolling-shutter sweep by default: each column at its own time
+    assert swept is not None and swept.min() < -0.09 and swept.max() <= 0.0
 
 
-def test_the_demo_graph_sweeps_instantly_unless_told_to_turn(tmp_path):
-    """`ssf demo` (and `ssf bench graph`, the same graph) casts instant sweeps; --sim-param
-    lidar.rolling_shutter:=true casts each LiDAR column at its own time."""
+def test_the_demo_graph_sweeps_each_column_at_its_time_and_the_real_time_bench_instantly(tmp_path):
+    """`ssf demo` casts rolling-shutter sweeps (--sim-param lidar.rolling_shutter:=false: instant ones); `ssf bench
+    graph`, the same graph in real time, casts instant sweeps unless its -p says otherwise."""
+    from ssf_bringup.bench_graph import bench_graph_spec
+
     default = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1)
-    assert demo.scenario_settings(default) == {"lidar.rolling_shutter": False}
-    assert not demo.check_scenario("urban_100", demo.scenario_settings(default)).lidar.rolling_shutter
-    rolling = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1,
-                              sim_settings={"lidar.rolling_shutter": True})
-    assert demo.check_scenario("urban_100", demo.scenario_settings(rolling)).lidar.rolling_shutter
-    sim = next(node for node in rolling.nodes if node.executable == "sim_bridge")
-    assert "lidar.rolling_shutter:=true" in command_line(sim, {})
+    assert demo.scenario_settings(default) == {"lidar.rolling_shutter": True}
+    assert demo.check_scenario("urban_100", demo.scenario_settings(default)).lidar.rolling_shutter
+    instant = demo.demo_graph(demo.DemoPaths(tmp_path), "urban_100", 5.0, 1,
+                              sim_settings={"lidar.rolling_shutter": False})
+    assert not demo.check_scenario("urban_100", demo.scenario_settings(instant)).lidar.rolling_shutter
+    sim = next(node for node in instant.nodes if node.executable == "sim_bridge")
+    assert "lidar.rolling_shutter:=false" in command_line(sim, {})
+    assert demo.scenario_settings(bench_graph_spec("urban_200")) == {"lidar.rolling_shutter": False}
+    told = bench_graph_spec("urban_200", parameters={"sim_bridge": {"lidar.rolling_shutter": True}})
+    assert demo.scenario_settings(told) == {"lidar.rolling_shutter": True}
 
 
 @pytest.mark.parametrize(
