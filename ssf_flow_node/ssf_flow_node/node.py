@@ -157,10 +157,11 @@ class FlowNode(Node):
     def _estimate(self, _kind: str, job: FlowJob) -> None:
         start = time.perf_counter()
         sweeps = pair_times(job.scan.time, job.next_scan.time, (job.next_scan.stamp_ns - job.scan.stamp_ns) * 1e-9)
+        follows = self.answered is not None and job.scan.stamp_ns > self.answered  # pairs skipped to keep up, if any
         if job.iteration == 0:  # the work that needs no mask first: meanwhile the scan before may finish
-            self.estimator.get_ready(job.scan.xyz, job.next_scan.xyz, sweeps)
+            self.estimator.get_ready(job.scan.xyz, job.next_scan.xyz, sweeps, follows)
         mask = self.temporal_prior(job.scan) if job.iteration == 0 else job.mask
-        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask, sweeps)
+        result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask, sweeps, follows)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
         self.stats.record(self._compute_ms[-1], "estimates")
         ego = EgoMotion(job.scan.stamp_ns, job.next_scan.stamp_ns, job.scan.frame_id, result.ego, job.iteration)

@@ -1,23 +1,24 @@
 """Scene flow on sweeps that take their period to turn: both scans moved to their stamps, the flow estimated there, and
-each point's flow taken back to the time it was fired at.
+each raw point's flow the ego motion plus its own motion.
 
-1. The sweep's motion: the raw scan t aligned to the raw scan t+1 on a few thousand points (both swept alike, their
-   distortions nearly cancel: a few centimetres off where the car brakes; the robust kernel leaves movers out). It does
-   not lean on the last pair, whose motion is a decimetre off the next one's where the car brakes or speeds up (and
-   estimating the pair again with the motion found converges no better).
-2. Deskew: every point of a scan is moved into the sensor frame at the scan's stamp by that motion along the ground (x,
-   y, yaw), interpolated across its sweep at constant velocity. A scan is deskewed when it first comes, so that scan
-   t+1 of one pair is scan t of the next exactly (the estimator carries its motions across that link); a scan t that
-   no pair deskewed (a stream's first, one after pairs a node skipped to keep up) takes the same motion.
-3. Estimate once on the deskewed scans: the ego motion and every cluster's own rigid motion between the two stamps; a
+1. Deskew: every point of a scan is moved into the sensor frame at the scan's stamp by the ego motion along the ground
+   (x, y, yaw) interpolated across its sweep at constant velocity: the last pair's ego motion. A scan is deskewed
+   when it first comes, so that scan t+1 of one pair is scan t of the next exactly (the estimator carries its motions
+   across that link), and so is a scan t that comes after pairs a node skipped to keep up; a stream's first pair is
+   taken as it is, then deskewed by its own ego motion.
+2. Estimate on the deskewed scans: the ego motion and every cluster's own rigid motion between the two stamps; a
    moving cluster is fitted between two deskewed scans in which the same columns fired at the same times, so its
-   motion is its own over one period, whatever it did while the sensor turned.
-4. Each raw point's flow: the ego motion between the stamps plus its own motion relative to the scene as the
-   estimate between the deskewed scans found it. At constant velocity this is where its surface is one period after it
-   was fired (the same column of the next sweep, in that column's sensor frame: the simulator's truth) to the bit; where
-   the car brakes or turns in, a static point's flow stays the ego motion's (its surface does not move), where the
-   exact column-to-column flow would carry the change of the car's motion between the sweeps (up to decimetres per
-   second at 40 m when the yaw rate changes) and every stage downstream would read it as the point's own motion.
+   motion is its own over one period, whatever it did while the sensor turned. Where the ego motion found is not the
+   one scan t+1 was deskewed with, that scan is deskewed again with it and the pair estimated again. (Deskewing with
+   an alignment of the raw scans instead, once a pair, was 13-17 ms cheaper where the car brakes but locked onto
+   traffic moving with the car, 20-35 cm off for pairs on end in dense_500; one estimate at constant velocity alone
+   doubled the odometry's rotational error over urban_200's lane change: docs/sensors.md.)
+3. Each raw point's flow is the ego motion between the stamps plus its own motion relative to the scene as the
+   estimate between the deskewed scans found it. At constant velocity this is where its surface is when the next sweep
+   fires its column (the simulator's truth) exactly; where the car brakes or steers, a still point's flow stays the ego
+   motion's, where the column-to-column flow would carry the change of the car's motion between the sweeps (up to
+   decimetres a period at 40 m when the yaw rate changes) and every stage downstream would read it as the point's own
+   motion: 55 moving objects a scan on the demo's planner-driven drive, where the car meets 4-10.
 Flow and ego motion are those between the two header stamps. Without per-point time, or with every time zero (instant
 sweeps), the estimator runs on the scans as given: the same result to the bit."""
 
@@ -28,17 +29,17 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ssf_common.geometry.se3 import rigid_flow
+from ssf_common.geometry.se3 import invert, rigid_flow, rotation_angle
 from ssf_common.geometry.sweep import PairTimes, check_time, deskew, planar, timed
 from ssf_flow_node.core.base import FlowEstimator, FlowResult, fingerprint, get_ready
 from ssf_flow_node.core.preprocess import check_scan
-from ssf_flow_node.core.registration import RegistrationConfig, ScanMatcher
 
 SWEEP_HISTORY = 3  # deskewed scans kept: a stream's scan t+1 is the next pair's scan t
-# the sweep's motion from the raw scans: the target's points, and the schedule (the whole-scan ego registration's; half
-# its points cost 6 ms less a pair and 19 % in dynamic EPE on urban_200's held-out seeds)
-SWEEP_TARGET_POINTS = 8192
-SWEEP_REGISTRATION = RegistrationConfig(source_points=1024, refine_points=4096, refine_iterations=20, tolerance=1e-4)
+# a motion over a sweep off by this (m, at this range) moves no point more: steady driving's constant velocity is
+# within it, and deskewing again for less chases the estimate's own noise and costs a second estimate (urban_200 seed
+# 7: 1.51 estimates per pair at 2 cm, 1.10 at 4 cm; held-out seeds 30-32 at 4 cm against 2 cm: dynamic EPE 0.0453 /
+# 0.0516 on urban_200, 0.0527 / 0.0521 on dense_500, moving IoU 0.742 / 0.742 and 0.634 / 0.649)
+SETTLED_M, SETTLED_RANGE_M = 0.04, 50.0
 
 
 class Deskewed(NamedTuple):
@@ -47,6 +48,7 @@ class Deskewed(NamedTuple):
     key: bytes  # the raw scan's fingerprint
     points: np.ndarray  # (N, 3) float32, sensor frame at the stamp
     motion: np.ndarray  # (4, 4) the motion over the sweep it was deskewed with (the flow's ego motion convention)
+    swept: np.ndarray | None = None  # the motion over its sweep as the pair ending at it measured it, once estimated
 
 
 class DeskewingEstimator:
@@ -56,7 +58,7 @@ class DeskewingEstimator:
         self.estimator = estimator
         self.enabled = enabled
         self.name = estimator.name
-        self.motion: np.ndarray | None = None  # the last sweep's motion: where the next alignment starts
+        self.motion: np.ndarray | None = None  # the last pair's ego motion: the next sweep's, at constant velocity
         self.scans: collections.OrderedDict[bytes, Deskewed] = collections.OrderedDict()
 
     def __getattr__(self, name: str) -> Any:
@@ -66,40 +68,54 @@ class DeskewingEstimator:
         return getattr(self.estimator, name)
 
     def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None,
-                 sweeps: PairTimes | None = None) -> FlowResult:
-        """Flow for every point of pc1 between the two stamps; deskewed where `sweeps` carries time."""
+                 sweeps: PairTimes | None = None, follows: bool = False) -> FlowResult:
+        """Flow for every point of pc1 between the two stamps; deskewed where `sweeps` carries time. follows: pc1 comes
+        later in the stream than the last pair's scan t+1 (the caller skipped the pairs between to keep up)."""
         if not self.deskews(sweeps):
             return self.estimator.estimate(pc1, pc2, mask)
-        # 1.-2. both scans at their stamps, deskewed with the sweep's motion from the raw scans
-        scan1, scan2, xyz1 = self.deskewed(pc1, pc2, sweeps)
-        # 3. flow and ego motion between the stamps
+        # 1. both scans at their stamps
+        scan1, scan2, xyz1 = self.deskewed(pc1, pc2, sweeps, follows)
+        # 2. flow and ego motion between the stamps; where the ego motion found is not the one scan t+1 was deskewed
+        #    with (the vehicle braked or turned in), scan t+1 is deskewed again with it and the estimate taken again
+        #    (and so is scan t in a stream's first pair, whose sweep no pair has measured)
         result = self.estimator.estimate(scan1.points, scan2.points, mask)
-        # 4. each raw point moves with the ego motion, plus its own motion relative to the scene
+        ego = planar(result.ego)
+        if not settled(ego, scan2.motion):
+            if scan1.swept is None:  # no pair measured scan t's sweep: both at this pair's motion
+                scan1 = self.store(scan1.key, xyz1, sweeps.time1, ego, sweeps.period)
+            scan2 = self.store(scan2.key, check_scan(pc2, "scan t+1"), sweeps.time2, ego, sweeps.period)
+            result = self.estimator.estimate(scan1.points, scan2.points, mask)
+            ego = planar(result.ego)
+        self.motion = ego
+        self.scans[scan2.key] = scan2._replace(swept=ego)
+        # 3. each raw point moves with the ego motion, plus its own motion relative to the scene
         own = result.flow - rigid_flow(result.ego, scan1.points)
         return FlowResult(flow=rigid_flow(result.ego, xyz1) + own, ego=result.ego)
 
-    def get_ready(self, pc1: np.ndarray, pc2: np.ndarray, sweeps: PairTimes | None = None) -> None:
+    def get_ready(self, pc1: np.ndarray, pc2: np.ndarray, sweeps: PairTimes | None = None,
+                  follows: bool = False) -> None:
         """The pair's work that needs no mask, on the scans it will be asked about."""
         if not self.deskews(sweeps):
             get_ready(self.estimator, pc1, pc2)
             return
-        scan1, scan2, _ = self.deskewed(pc1, pc2, sweeps)
+        scan1, scan2, _ = self.deskewed(pc1, pc2, sweeps, follows)
         get_ready(self.estimator, scan1.points, scan2.points)
 
     def deskews(self, sweeps: PairTimes | None) -> bool:
         """Whether this pair is deskewed: on, and either scan took its period to turn."""
         return self.enabled and sweeps is not None and (timed(sweeps.time1) or timed(sweeps.time2))
 
-    def deskewed(self, pc1: np.ndarray, pc2: np.ndarray, sweeps: PairTimes) -> tuple[Deskewed, Deskewed, np.ndarray]:
-        """Both scans at their stamps (each deskewed once, when it first comes, with the motion of the raw scans'
-        alignment) and scan t's raw xyz."""
+    def deskewed(self, pc1: np.ndarray, pc2: np.ndarray, sweeps: PairTimes,
+                 follows: bool = False) -> tuple[Deskewed, Deskewed, np.ndarray]:
+        """Both scans at their stamps (each deskewed once, when it first comes) and scan t's raw xyz."""
         xyz1, xyz2 = check_scan(pc1, "scan t"), check_scan(pc2, "scan t+1")
         time1 = check_time(sweeps.time1, len(xyz1), "scan t's per-point time")
         time2 = check_time(sweeps.time2, len(xyz2), "scan t+1's per-point time")
         key1, key2 = fingerprint(xyz1, time1), fingerprint(xyz2, time2)
-        if key1 not in self.scans or key2 not in self.scans:
-            self.motion = planar(sweep_motion(xyz1, xyz2, self.motion))
-        scans = [self.scans[key] if key in self.scans else self.store(key, xyz, time, self.motion, sweeps.period)
+        # a stream goes on at constant velocity, also past pairs the caller skipped (`follows`: a node that cannot keep
+        # up answers the newest pair); a first pair is taken as it is, then deskewed by its own ego motion
+        motion = self.motion if (key1 in self.scans or follows) and self.motion is not None else np.eye(4)
+        scans = [self.scans[key] if key in self.scans else self.store(key, xyz, time, motion, sweeps.period)
                  for key, xyz, time in ((key1, xyz1, time1), (key2, xyz2, time2))]
         for key in (key1, key2):
             self.scans.move_to_end(key)
@@ -114,9 +130,8 @@ class DeskewingEstimator:
         return self.scans[key]
 
 
-def sweep_motion(xyz1: np.ndarray, xyz2: np.ndarray, start: np.ndarray | None = None) -> np.ndarray:
-    """The sensor's motion over one period (the flow's ego motion convention) from the raw scans as swept: scan t on
-    scan t+1's surfaces (SWEEP_TARGET_POINTS of them), from `start` (e.g. the last sweep's motion)."""
-    rng = np.random.default_rng(SWEEP_REGISTRATION.seed)
-    target = xyz2 if len(xyz2) <= SWEEP_TARGET_POINTS else xyz2[rng.choice(len(xyz2), SWEEP_TARGET_POINTS, replace=False)]
-    return ScanMatcher(target, SWEEP_REGISTRATION).align(xyz1, start, prior=start)
+def settled(ego: np.ndarray, motion: np.ndarray) -> bool:
+    """Whether the ego motion found is the one a scan was deskewed with, within what moves its points by less than
+    SETTLED_M at SETTLED_RANGE_M."""
+    deviation = invert(motion) @ ego
+    return bool(np.linalg.norm(deviation[:3, 3]) + rotation_angle(deviation) * SETTLED_RANGE_M < SETTLED_M)
