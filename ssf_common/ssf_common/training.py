@@ -4,6 +4,7 @@ lines and checkpoints) and resuming from a checkpoint's optimizer state."""
 from __future__ import annotations
 
 import time
+from abc import ABC, abstractmethod
 from collections.abc import Callable
 from typing import Any
 
@@ -12,7 +13,7 @@ import numpy as np
 from ssf_common.interrupts import stop_requests
 
 
-class StepTrainer:
+class StepTrainer(ABC):
     """A network, its optimizer and step scheduler, trained step by step; subclasses give the loss of the next batch
     (`batch_loss`), write their checkpoint (`save`) and may add to the loop (`progress`, `clip_gradients`,
     `after_step`, `at_time_limit`). Their config holds steps, log_every, checkpoint_every, max_minutes, threads, seed."""
@@ -27,13 +28,13 @@ class StepTrainer:
         self.step = 0
         self.rng = np.random.default_rng(self.config.seed)
 
+    @abstractmethod
     def batch_loss(self) -> Any:
         """The training loss (a scalar tensor) of the next batch."""
-        raise NotImplementedError
 
+    @abstractmethod
     def save(self) -> None:
         """Write the resumable checkpoint."""
-        raise NotImplementedError
 
     def progress(self, last: int) -> str:
         """More of the progress line, over the last `last` steps (e.g. an error the loss does not show)."""
