@@ -12,6 +12,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from ssf_common.geometry.neighbours import PointIndex
+from ssf_common.geometry.reductions import vector_lengths
 from ssf_common.geometry.sampling import grid_cells
 
 NEIGHBOUR_OFFSETS = np.array([(dx, dy, dz) for dx in (-1, 0, 1) for dy in (-1, 0, 1) for dz in (-1, 0, 1)
@@ -56,13 +57,13 @@ def spacing_components(points: np.ndarray, cell: float, reach: float, min_link: 
         return Clustering(np.full(0, -1), 0)
     xyz = np.asarray(points[:, :3], np.float64)
     spacing = angular_spacing(xyz, sample, seed) if spacing is None else spacing
-    link = np.clip(reach * spacing * np.linalg.norm(xyz, axis=1), min_link, max_link)
+    link = np.clip(reach * spacing * vector_lengths(xyz), min_link, max_link)
     _, first, inverse = np.unique(grid_cells(xyz, cell)[0], return_index=True, return_inverse=True)
     cells, reach_of = xyz[first], link[first]
     # each point links the points within its own link length: a pair is linked when it is within the longer of
     # the two (one KD-tree pair search at the longest, then the pairs beyond both lengths dropped)
     pairs = cKDTree(cells).query_pairs(float(reach_of.max()), output_type="ndarray")
-    gaps = np.linalg.norm(cells[pairs[:, 0]] - cells[pairs[:, 1]], axis=1)
+    gaps = vector_lengths(cells[pairs[:, 0]] - cells[pairs[:, 1]])
     linked = pairs[gaps <= np.maximum(reach_of[pairs[:, 0]], reach_of[pairs[:, 1]])]
     graph = coo_matrix((np.ones(len(linked), dtype=np.int8), (linked[:, 0], linked[:, 1])),
                        shape=(cells.shape[0], cells.shape[0]))
@@ -77,7 +78,7 @@ def angular_spacing(points: np.ndarray, sample: int = 2048, seed: int = 0, neigh
         return 0.0
     pick = np.random.default_rng(seed).choice(points.shape[0], min(sample, points.shape[0]), replace=False)
     gaps = PointIndex(points).query(points[pick], k=neighbours + 1)[0][:, -1]
-    return float(np.median(gaps / np.maximum(np.linalg.norm(points[pick], axis=1), 1e-6)))
+    return float(np.median(gaps / np.maximum(vector_lengths(points[pick]), 1e-6)))
 
 
 def angular_neighbours(points: np.ndarray, labels: np.ndarray, angle: float, cell: float) -> np.ndarray:
@@ -88,7 +89,7 @@ def angular_neighbours(points: np.ndarray, labels: np.ndarray, angle: float, cel
         return np.zeros((0, 2), np.int64)
     xyz = np.asarray(points[valid, :3], np.float64)
     _, first = np.unique(grid_cells(xyz, cell)[0], return_index=True)
-    directions = xyz[first] / np.maximum(np.linalg.norm(xyz[first], axis=1, keepdims=True), 1e-6)
+    directions = xyz[first] / np.maximum(vector_lengths(xyz[first])[:, None], 1e-6)
     near = cKDTree(directions).query_pairs(2.0 * np.sin(angle / 2.0), output_type="ndarray")
     pairs = np.sort(np.asarray(labels)[valid[first]][near], axis=1)
     return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)

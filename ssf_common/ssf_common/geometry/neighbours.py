@@ -7,6 +7,8 @@ from typing import NamedTuple
 import numpy as np
 import small_gicp
 
+from ssf_common.geometry.reductions import column_bounds
+
 
 class PointIndex:
     """A KD-tree over 3-D points, queried as scipy's cKDTree is (distance inf and index n where no point lies closer
@@ -78,8 +80,9 @@ def may_be_near(reference: np.ndarray, query: np.ndarray, reach: float) -> np.nd
         return np.zeros(len(query), bool)
     if not np.isfinite(reach) or reach <= 0:
         return np.ones(len(query), bool)
-    low = reference[:, :2].min(axis=0) - reach
-    shape = np.floor((reference[:, :2].max(axis=0) + reach - low) / reach).astype(np.int64) + 1
+    low, high = column_bounds(reference[:, :2])
+    low = low - reach
+    shape = np.floor((high + reach - low) / reach).astype(np.int64) + 1
     if shape[0] * shape[1] > MAX_GRID_CELLS:
         return np.ones(len(query), bool)
     occupied = np.zeros(shape + 2, bool)  # a border of empty cells: the neighbours of every cell exist

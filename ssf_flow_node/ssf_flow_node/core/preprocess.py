@@ -11,6 +11,7 @@ from ssf_common.config import Section
 from ssf_common.errors import DataError
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.neighbours import PointIndex, may_be_near, propagate
+from ssf_common.geometry.reductions import vector_lengths
 from ssf_common.geometry.sampling import Sampling, sample_indices
 
 
@@ -90,7 +91,7 @@ def check_mask(mask: np.ndarray | None, count: int) -> np.ndarray | None:
 
 def crop(points: np.ndarray, config: PreprocessConfig) -> np.ndarray:
     """Indices of the points inside the configured range annulus."""
-    distance = np.linalg.norm(points[:, :2], axis=1)
+    distance = vector_lengths(points[:, :2])
     return np.flatnonzero((distance >= config.min_range) & (distance <= config.max_range))
 
 

@@ -20,6 +20,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ssf_common.geometry.boxes import boxes_corners
+from ssf_common.geometry.reductions import vector_lengths
 from ssf_common.records import Obstacles
 
 INACTIVE_OFFSET = -1.0e4  # n = 0, offset far below: the constraint of an empty slot always holds
@@ -117,12 +118,12 @@ def separation(ego: np.ndarray, obstacle: np.ndarray) -> tuple[np.ndarray, np.nd
         edge = np.roll(polygon, -1, axis=-2) - polygon
         for e in (0, 1):  # a rectangle has two edge directions; both normals and their opposites are candidates
             normal = np.stack([edge[..., e, 1], -edge[..., e, 0]], axis=-1)
-            normal = normal / np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
+            normal = normal / np.maximum(vector_lengths(normal)[..., None], 1e-12)
             axes += [normal, -normal]
     axes.append(_closest_direction(ego, obstacle))
     candidates = np.stack(axes, axis=-2)  # (..., C, 2)
     value = -_support(ego, -candidates) - _support(obstacle, candidates)  # min over ego - max over obstacle
-    valid = np.linalg.norm(candidates, axis=-1) > 0.5
+    valid = vector_lengths(candidates) > 0.5
     value = np.where(valid, value, -np.inf)
     best = value.argmax(axis=-1)
     normal = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]

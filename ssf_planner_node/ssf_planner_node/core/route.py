@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ssf_common.errors import ConfigError
+from ssf_common.geometry.reductions import vector_lengths
 
 EXTENSION = 200.0  # metres of straight road assumed beyond the goal, so the horizon never runs off the route
 
@@ -58,7 +59,7 @@ class Route:
         offset = xy[:, None, :] - self._points[None, :-1, :]  # (N, S, 2)
         along = np.clip(np.einsum("nsi,si->ns", offset, self._tangents), 0.0, self._lengths[None])
         nearest = self._points[None, :-1, :] + along[..., None] * self._tangents[None]
-        segment = np.argmin(np.linalg.norm(xy[:, None, :] - nearest, axis=2), axis=1)
+        segment = np.argmin(vector_lengths(xy[:, None, :] - nearest), axis=1)
         rows = np.arange(len(xy))
         return self._point(self._starts[segment] + along[rows, segment], nearest[rows, segment], segment)
 

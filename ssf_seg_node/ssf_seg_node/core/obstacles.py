@@ -15,6 +15,7 @@ from ssf_common.geometry.clustering import dbscan
 from ssf_common.geometry.fitting import weighted_kabsch
 from ssf_common.geometry.ground import height_above_ground
 from ssf_common.geometry.labels import label_counts, label_means
+from ssf_common.geometry.reductions import column_bounds
 from ssf_common.geometry.sampling import voxel_indices
 from ssf_common.geometry.se3 import invert, transform_points
 from ssf_common.records import ObstacleKind, Obstacles, Segmentation, SemanticFlow
@@ -148,10 +149,10 @@ def fit_footprint_axis(xy: np.ndarray, step: float, closeness: float) -> float:
     """Heading in [0, pi/2) of the rectangle whose sides the points hug most (L-shape closeness, Zhang et al. 2017)."""
     angles = np.arange(0.0, np.pi / 2, step)
     c, s = np.cos(angles), np.sin(angles)
-    u, v = xy @ np.stack([c, s]), xy @ np.stack([-s, c])  # (points, angles)
-    to_u = np.minimum(u.max(axis=0) - u, u - u.min(axis=0))
-    to_v = np.minimum(v.max(axis=0) - v, v - v.min(axis=0))
-    score = (1.0 / np.maximum(np.minimum(to_u, to_v), closeness)).sum(axis=0)
+    u, v = np.stack([c, s]).T @ xy.T, np.stack([-s, c]).T @ xy.T  # (angles, points): reduced along rows, fast
+    to_u = np.minimum(u.max(axis=1, keepdims=True) - u, u - u.min(axis=1, keepdims=True))
+    to_v = np.minimum(v.max(axis=1, keepdims=True) - v, v - v.min(axis=1, keepdims=True))
+    score = (1.0 / np.maximum(np.minimum(to_u, to_v), closeness)).sum(axis=1)
     return float(angles[int(np.argmax(score))])
 
 
@@ -159,7 +160,7 @@ def extent_along(xy: np.ndarray, yaw: float) -> tuple[np.ndarray, np.ndarray]:
     """Centre (2,) and sides (along yaw, across) of the rectangle at heading yaw around the points."""
     axes = np.array([[np.cos(yaw), np.sin(yaw)], [-np.sin(yaw), np.cos(yaw)]])
     uv = xy @ axes.T
-    low, high = uv.min(axis=0), uv.max(axis=0)
+    low, high = column_bounds(uv)
     return (low + high) / 2 @ axes, high - low
 
 

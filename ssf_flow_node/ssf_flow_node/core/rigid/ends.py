@@ -102,7 +102,8 @@ def hidden_ends(points2: np.ndarray, on2: np.ndarray, labels2: np.ndarray, axis:
         along = points2[members, :2] @ axis[cluster]
         for end in members[[np.argmin(along), np.argmax(along)]]:
             window = 3.0 * spacing[cluster] / max(range2[end], 1e-6)
-            beside = np.abs(np.angle(np.exp(1j * (azimuth2 - azimuth2[end])))) <= window
-            beside[members] = False
-            hidden[row] |= bool(np.any(beside & (range2 < range2[end] - margin)))
+            nearer = np.flatnonzero(range2 < range2[end] - margin)  # few: the angle is wrapped for these alone
+            beside = np.abs(np.angle(np.exp(1j * (azimuth2[nearer] - azimuth2[end])))) <= window
+            beside[np.isin(nearer, members)] = False
+            hidden[row] |= bool(np.any(beside))
     return hidden

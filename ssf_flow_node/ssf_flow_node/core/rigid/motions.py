@@ -9,6 +9,7 @@ import numpy as np
 
 from ssf_common.geometry.fitting import planar_kabsch, planar_plane_step
 from ssf_common.geometry.labels import label_counts, label_extents, label_means, ragged_arange
+from ssf_common.geometry.reductions import vector_lengths
 from ssf_common.geometry.se3 import yaw_translate
 from ssf_common.geometry.neighbours import PointIndex
 from ssf_flow_node.core.rigid.carry import Carried, carried_motions, continue_carried
@@ -79,7 +80,7 @@ def histogram_peaks(points1: np.ndarray, points2: np.ndarray, clusters: Clusters
     second = picks2[np.repeat(starts, lengths) + ragged_arange(lengths)]
     displacement = points2[second, :2] - points1[first, :2]
     max_step = config.max_speed * config.scan_period
-    near = np.linalg.norm(displacement, axis=1) <= max_step
+    near = vector_lengths(displacement) <= max_step
     first, displacement = first[near], displacement[near]
     half = int(np.ceil(max_step / config.histogram_bin)) + 1
     width = 2 * half + 1
