@@ -14,7 +14,8 @@ ABOVE_COMMON = NODE_PACKAGES + ("ssf_eval", "ssf_bringup")
 CORE_LIBRARIES = {"numpy", "scipy", "torch", "sklearn", "open3d", "casadi", "pydantic", "small_gicp"}
 CORE_COMMON = ("ssf_common.config", "ssf_common.errors", "ssf_common.geometry", "ssf_common.dataset", "ssf_common.records",
                "ssf_common.checkpoints", "ssf_common.training",  # training: the one step loop every trainer runs
-               "ssf_common.temporal_prior")  # the prior M^(0) crosses from the fusion core to the flow node
+               "ssf_common.temporal_prior",  # the prior M^(0) crosses from the fusion core to the flow node
+               "ssf_common.vehicle")  # the sensor's mount and the vehicle's measured motion (flow and odometry)
 
 
 def modules_of(package: str) -> list[Path]:

@@ -239,11 +239,11 @@ class SimBridgeNode(Node):
     def _publish(self, frame: Frame, previous: Frame | None = None) -> None:
         stamp = frame.stamp_ns
         self.pub_clock.publish(ros_messages.clock(stamp))
-        self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))  # first: the whole graph waits for it
+        if frame.measured is not None:  # the sweep's measured motion before the sweep: a car's bus has it by then
+            self.pub_twist.publish(ros_messages.vehicle_twist(frame.measured, stamp))
+        self.pub_points.publish(ros_messages.scan_cloud(frame.scan, stamp))  # then the scan: the whole graph waits for it
         self.pub_tf.publish(ros_messages.transforms(frame.base_pose, frame.pose, stamp))
         self.pub_odom.publish(ros_messages.odometry(frame.base_pose, frame.ego, stamp))
-        if frame.measured is not None:
-            self.pub_twist.publish(ros_messages.vehicle_twist(frame.measured, stamp))
         # the ground truth and the markers cost a few ms per step: built only when someone listens (a recorder, a view)
         if self.pub_obstacles.get_subscription_count():
             self.pub_obstacles.publish(ros_messages.obstacles(frame.agents, stamp))

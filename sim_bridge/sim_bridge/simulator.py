@@ -20,6 +20,8 @@ from sim_bridge.agents import AgentKind, AgentStates, EgoFootprint, agent_mesh
 from sim_bridge.traffic import Traffic
 from sim_bridge.world import PointClass, World
 from ssf_common.checks import require_seed
+from ssf_common.geometry.kinematics import measured_sweep
+from ssf_common.geometry.se3 import invert
 
 CLEARANCE_RADIUS = 30.0
 
@@ -78,6 +80,15 @@ class Frame:
     status: EpisodeStatus
     truth: Callable[[], FlowTruth | None] = field(default=lambda: None, repr=False, compare=False)  # makes `flow`
     measured: MeasuredMotion | None = None  # the step that ended here, as the odometer saw it (None on the first)
+
+    def measured_sweep(self, start_ns: int) -> np.ndarray | None:
+        """The lidar's motion from start_ns (the step's start) to this frame as the odometer measured it (what
+        /vehicle/twist says), points of the lidar frame then into this one's; None on the first frame."""
+        if self.measured is None:
+            return None
+        mount = invert(self.base_pose) @ self.pose  # base_link <- lidar
+        return measured_sweep([(self.stamp_ns, self.measured.speed, self.measured.yaw_rate)], start_ns, self.stamp_ns,
+                              mount)
 
     @cached_property
     def flow(self) -> FlowTruth | None:

@@ -70,3 +70,11 @@ def matrix_from_transform(transform: Any) -> np.ndarray:
     matrix[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
     matrix[:3, 3] = [t.x, t.y, t.z]
     return matrix
+
+
+def mount_from_tf(msg: Any, base_frame: str, sensor_frame: str) -> np.ndarray | None:
+    """base_link <- sensor from a tf2_msgs/TFMessage that carries it (None where it does not)."""
+    for item in msg.transforms:
+        if item.header.frame_id == base_frame and item.child_frame_id == sensor_frame:
+            return matrix_from_transform(item.transform)
+    return None

@@ -1,5 +1,6 @@
 """ssf_flow_node: scene flow between consecutive scans on /lidar/points, conditioned on the temporal prior the last
-scan left (/ssf/prior), re-estimated for each mask hint; the flow on /ssf/flow and its ego motion on /ssf/ego_motion."""
+scan left (/ssf/prior), re-estimated for each mask hint; the flow on /ssf/flow and its ego motion on /ssf/ego_motion.
+Sweeps that carry per-point time are deskewed, by the vehicle's measured motion where it is given (twist_topic)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from pydantic import Field
 
 from ssf_common import messages, topics
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
@@ -20,11 +22,23 @@ from ssf_common.pointcloud import decode_cloud
 from ssf_common.records import EgoMotion, PriorSource, SceneFlow
 from ssf_common.stamps import SensorPeriod
 from ssf_common.temporal_prior import carry_prior
+from ssf_common.pose_msgs import mount_from_tf
+from ssf_common.vehicle import MeasuredTwists, MountConfig, mount_matrix
 from ssf_common.worker import LatestWorker
 from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
 
 SCAN_HISTORY = 8  # scans kept so that a mask hint for a recent scan still finds its pair
 PRIOR_HISTORY = 4  # temporal priors kept until the pair of the scan after theirs is estimated
+
+
+class FlowNodeVehicle(MountConfig):
+    """The vehicle's own measured motion, which deskews each sweep."""
+
+    twist_topic: str = Field("", description="the vehicle's measured motion (geometry_msgs/TwistStamped of base_link: "
+                             "wheel speed, yaw-rate gyro), e.g. /vehicle/twist from the simulator: each sweep is "
+                             "deskewed by its own measured motion, as IMU or wheel deskewing does on a car, and "
+                             "estimated once; empty: none, each sweep is deskewed at the last pair's motion and "
+                             "estimated again where the car braked or steered")
 
 
 @dataclass(frozen=True)
@@ -56,6 +70,10 @@ class FlowNode(Node):
         device = self.declare_parameter("device", "cpu").value
         report_period = self.declare_parameter("report_period_s", 5.0).value
         self.prior_wait_s = float(self.declare_parameter("prior_wait_s", 0.0).value)  # see wait_for_prior
+        self.vehicle = self.declare_config(FlowNodeVehicle)
+        self.mount = mount_matrix(self.vehicle.mount)
+        self.twists = MeasuredTwists()
+        self.sensor_frame = ""
         self.estimator = make_estimator(config=self.config, device=device)
         self.scans: collections.deque[ReceivedScan] = collections.deque(maxlen=SCAN_HISTORY)
         self.priors: collections.OrderedDict[int, PriorSource] = collections.OrderedDict()  # by the stamp they came from
@@ -66,6 +84,11 @@ class FlowNode(Node):
         self.flow_pub = self.create_publisher("sensor_msgs/msg/PointCloud2", topics.FLOW, QOS_DEFAULT)
         self.worker = LatestWorker(self._estimate, ("hint", "scan"), self.get_logger(), "flow")
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.PRIOR, self.on_prior, QOS_DEFAULT)
+        if self.vehicle.twist_topic:
+            self.create_subscription("geometry_msgs/msg/TwistStamped", self.vehicle.twist_topic, self.on_twist,
+                                     QOS_DEFAULT)
+            if self.vehicle.mount_from_tf:
+                self.create_subscription("tf2_msgs/msg/TFMessage", topics.TF, self.on_tf, QOS_DEFAULT)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.LIDAR_POINTS, self.on_scan, QOS_SENSOR_DATA)
         self.create_subscription("sensor_msgs/msg/PointCloud2", topics.MASK_HINT, self.on_mask_hint, QOS_DEFAULT)
         self.create_timer(report_period, self._report)
@@ -85,6 +108,7 @@ class FlowNode(Node):
                 self.get_logger().warning(f"{topics.LIDAR_POINTS}: {decoded.time_problem}; scans are not deskewed")
         scan = ReceivedScan(messages.stamp_ns(msg.header.stamp), msg.header.frame_id, np.ascontiguousarray(decoded.xyz),
                             decoded.time)
+        self.sensor_frame = scan.frame_id
         if self.scans and scan.stamp_ns <= self.scans[-1].stamp_ns:
             self.get_logger().warning("scan stamps went backwards: starting a new sequence")
             self.scans.clear()
@@ -102,6 +126,33 @@ class FlowNode(Node):
             return True
         self.stats.count("pairs_skipped_after_a_lost_scan")
         return False
+
+    def on_twist(self, msg: Any) -> None:
+        """Keep one measurement of the vehicle's speed and yaw rate."""
+        linear, angular = float(msg.twist.linear.x), float(msg.twist.angular.z)
+        if not (np.isfinite(linear) and np.isfinite(angular)):
+            self.get_logger().warning(f"dropped a measurement on {self.vehicle.twist_topic} that is not finite")
+            return
+        self.twists.add(messages.stamp_ns(msg.header.stamp), linear, angular)
+
+    def on_tf(self, msg: Any) -> None:
+        """Take the base_link -> sensor mount when /tf carries it."""
+        mount = mount_from_tf(msg, self.vehicle.base_frame, self.sensor_frame)
+        if mount is not None:
+            self.mount = mount
+
+    def measured_sweep(self, scan: ReceivedScan, next_scan: ReceivedScan) -> np.ndarray | None:
+        """The sensor's motion over the next scan's sweep as the vehicle measured it (None: not asked for, or none
+        came in time for it: then the sweep is deskewed at the last pair's motion, counted)."""
+        if not self.vehicle.twist_topic or next_scan.time is None:
+            return None
+        motion = self.twists.sweep(scan.stamp_ns, next_scan.stamp_ns, self.mount)
+        if motion is None:
+            self.stats.count("sweeps_without_measured_motion")
+            if self.stats.counts["sweeps_without_measured_motion"] == 1:
+                self.get_logger().warning(f"no measured motion on {self.vehicle.twist_topic} for the sweep of the scan "
+                                          f"at {next_scan.stamp_ns}: deskewed at the last pair's motion (said once)")
+        return motion
 
     def on_prior(self, msg: Any) -> None:
         """Keep what a finished scan left for the next scan's temporal prior."""
@@ -156,7 +207,8 @@ class FlowNode(Node):
 
     def _estimate(self, _kind: str, job: FlowJob) -> None:
         start = time.perf_counter()
-        sweeps = pair_times(job.scan.time, job.next_scan.time, (job.next_scan.stamp_ns - job.scan.stamp_ns) * 1e-9)
+        sweeps = pair_times(job.scan.time, job.next_scan.time, (job.next_scan.stamp_ns - job.scan.stamp_ns) * 1e-9,
+                            self.measured_sweep(job.scan, job.next_scan))
         follows = self.answered is not None and job.scan.stamp_ns > self.answered  # pairs skipped to keep up, if any
         if job.iteration == 0:  # the work that needs no mask first: meanwhile the scan before may finish
             self.estimator.get_ready(job.scan.xyz, job.next_scan.xyz, sweeps, follows)
@@ -164,6 +216,7 @@ class FlowNode(Node):
         result = self.estimator.estimate(job.scan.xyz, job.next_scan.xyz, mask, sweeps, follows)
         self._compute_ms.append((time.perf_counter() - start) * 1e3)
         self.stats.record(self._compute_ms[-1], "estimates")
+        self.stats.set("sweeps_estimated_again", getattr(self.estimator, "estimated_again", 0))
         ego = EgoMotion(job.scan.stamp_ns, job.next_scan.stamp_ns, job.scan.frame_id, result.ego, job.iteration)
         self.ego_pub.publish(ego_motion_to_msg(ego))  # first: it is small, and the flow's readers wait for it
         self.flow_pub.publish(scene_flow_to_cloud(SceneFlow(job.scan.stamp_ns, job.scan.frame_id, job.scan.xyz,

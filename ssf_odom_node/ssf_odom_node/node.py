@@ -14,7 +14,6 @@ import numpy as np
 from pydantic import Field
 
 from ssf_common import messages, pose_msgs, topics
-from ssf_common.config import Section
 from ssf_common.diagnostics import StageStats, advertise, worker_counts
 from ssf_common.conversions import (mask_from_cloud, odometry_to_msg, odometry_transform_msg,
                                     scene_flow_from_cloud, semantic_flow_from_cloud)
@@ -26,21 +25,18 @@ from ssf_common.records import EgoMotion
 from ssf_common.stamps import SensorPeriod, StampSequence
 from ssf_common.worker import LatestWorker
 from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
-from ssf_odom_node.core.vehicle import (VehicleMotion, mount_matrix, next_scan_estimate, speed_ahead,
-                                        to_base)
+from ssf_common.pose_msgs import mount_from_tf
+from ssf_common.vehicle import MountConfig, mount_matrix
+from ssf_odom_node.core.vehicle import VehicleMotion, next_scan_estimate, speed_ahead, to_base
 
 PENDING_FLOWS = 8  # flows kept while their mask is on the way (input: flow_mask)
 
 
-class OdomNodeConfig(Section):
+class OdomNodeConfig(MountConfig):
     """How the node is wired: its input, frames, the sensor mount and publishing rates."""
 
     input: str = Field("semantic_flow", description="semantic_flow (/ssf/semantic_flow) | flow_mask (/ssf/flow + /ssf/mask)")
     odom_frame: str = "odom"
-    base_frame: str = "base_link"
-    mount: tuple[float, float, float, float, float, float] = Field(
-        (0.0, 0.0, 1.8, 0.0, 0.0, 0.0), description="base_link -> sensor: x y z roll pitch yaw (m, rad), until /tf says")
-    mount_from_tf: bool = Field(True, description="take base_link -> sensor from /tf when it is published there")
     command_topic: str = Field(topics.CMD_VEL, description="velocity commands (geometry_msgs/Twist) the vehicle "
                                "obeys: across skipped scans, the motion they drove is the odometry's prior (see "
                                "command_yaw_rate); empty: no prior (a vehicle driven by something else)")
@@ -191,9 +187,9 @@ class OdomNode(Node):
 
     def on_tf(self, msg: Any) -> None:
         """Take the base_link -> sensor mount when /tf carries it."""
-        for item in msg.transforms:
-            if item.header.frame_id == self.wiring.base_frame and item.child_frame_id == self.sensor_frame:
-                self.mount = pose_msgs.matrix_from_transform(item.transform)
+        mount = mount_from_tf(msg, self.wiring.base_frame, self.sensor_frame)
+        if mount is not None:
+            self.mount = mount
 
     def _step(self, _kind: str, frame: OdomInput) -> None:
         if self.sequence.restarted(frame.stamp_ns):

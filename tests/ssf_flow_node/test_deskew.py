@@ -129,3 +129,25 @@ def test_a_braking_sensor_sees_a_still_street_still():
     assert abs(result.ego[0, 3] + speeds[2] * PERIOD) < 0.05
     own = np.linalg.norm(result.flow - rigid_flow(result.ego, pc1), axis=1)
     assert own.max() < 1e-4
+
+
+def test_a_braking_sensor_deskewed_by_its_measured_motion_is_estimated_once():
+    """Where the vehicle measured its motion over the sweep (wheel speed, gyro), scan t+1 is deskewed by it: the braking
+    pair is estimated once (at the last pair's motion it is deskewed and estimated again), its ego motion is found
+    closer, and the still street stays still."""
+    from ssf_common.geometry.se3 import rigid_flow
+    from ssf_flow_node.core.estimator import WHOLE_SCAN, FlowConfig, make_estimator
+
+    speeds = [SPEED, SPEED, SPEED - 0.8]
+    sweeps = swept_stream(5, 3, speeds)
+    found = {}
+    for measured in (False, True):
+        estimator = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN))
+        for (pc1, time1), (pc2, time2), speed in zip(sweeps, sweeps[1:], speeds[1:]):
+            motion = make_pose(-speed * PERIOD, 0.0, 0.0, 0.0) if measured else None  # the sensor drives along x
+            result = estimator.estimate(pc1, pc2, None, pair_times(time1, time2, PERIOD, motion))
+        found[measured] = (estimator.estimated_again, abs(result.ego[0, 3] + speeds[2] * PERIOD))
+        own = np.linalg.norm(result.flow - rigid_flow(result.ego, sweeps[1][0]), axis=1)
+        assert own.max() < 1e-4
+    assert found[False][0] >= 1 and found[True][0] == 0
+    assert found[True][1] < 0.01 and found[True][1] <= found[False][1]

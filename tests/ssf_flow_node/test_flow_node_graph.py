@@ -138,3 +138,43 @@ def test_a_rolling_shutter_pair_through_the_flow_node(graph):
     flow = np.stack([cloud[name] for name in ("flow_x", "flow_y", "flow_z")], axis=1)
     # at constant velocity every raw point of the static street moves by the ego motion between the stamps
     assert np.median(np.linalg.norm(flow - [-SPEED * PERIOD, 0.0, 0.0], axis=1)) < 0.02
+
+
+@pytest.mark.parametrize("measured", [True, False])
+def test_sweeps_deskewed_by_the_vehicles_measured_motion(measured):
+    """With twist_topic set, scan t+1's sweep is deskewed by the vehicle's measured motion over it: the first pair of a
+    stream is then estimated once (at no measured motion it is deskewed as it is, then again with its own motion), and
+    a sweep that no measurement covers is counted."""
+    from sim_bridge.ros_messages import vehicle_twist
+    from sim_bridge.simulator import MeasuredMotion
+    from support import SWEEP_PERIOD as PERIOD, SWEEP_SPEED as SPEED, swept_pair
+
+    flow_node = FlowNode(argv=["--ros-args", "-p", "report_period_s:=60.0", "-p", "twist_topic:=/vehicle/twist",
+                               "-p", "mount:=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]"])
+    flow_node.spin_in_thread()
+    probe = Node("probe")
+    received: list = []
+    probe.create_subscription("sensor_msgs/msg/PointCloud2", "/ssf/flow", received.append)
+    probe.spin_in_thread()
+    scans = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
+    twists = probe.create_publisher("geometry_msgs/msg/TwistStamped", "/vehicle/twist")
+    try:
+        assert wait_until(lambda: scans.get_subscription_count() > 0 and twists.get_subscription_count() > 0)
+        (pc1, time1), (pc2, time2) = swept_pair(0)
+        scans.publish(xyz_to_cloud(pc1, messages.header(1_000_000_000, "lidar"), time=time1))
+        if measured:  # the vehicle's bus: speed along x, no turn, over the step ending at scan t+1's stamp
+            twists.publish(vehicle_twist(MeasuredMotion(SPEED, 0.0), 1_100_000_000))  # as the simulator sends it
+            assert wait_until(lambda: len(flow_node.twists.samples) == 1)
+        time.sleep(0.1)
+        scans.publish(xyz_to_cloud(pc2, messages.header(1_100_000_000, "lidar"), time=time2))
+        assert wait_until(lambda: len(received) >= 1, timeout_s=60.0)
+        cloud = cloud_to_array(received[0])
+        flow = np.stack([cloud[name] for name in ("flow_x", "flow_y", "flow_z")], axis=1)
+        assert np.median(np.linalg.norm(flow - [-SPEED * PERIOD, 0.0, 0.0], axis=1)) < 0.02
+        assert flow_node.estimator.estimated_again == (0 if measured else 1)
+        assert flow_node.stats.counts["sweeps_without_measured_motion"] == (0 if measured else 1)
+    finally:
+        flow_node.request_shutdown()
+        flow_node.on_shutdown()
+        flow_node.destroy_node()
+        probe.destroy_node()

@@ -209,14 +209,14 @@ def test_measured_twists_between_scans_are_the_measured_motion():
             node.on_twist(measurement(k * PERIOD_NS, 5.0, 0.2))
         node.on_twist(measurement(10 * PERIOD_NS, 5.0, 0.2))  # the same sample again
         node.on_twist(measurement(11 * PERIOD_NS, float("inf"), 0.0))
-        assert len(node.vehicle.twists) == 10
+        assert len(node.vehicle.twists.samples) == 10
         assert node.measured_prior(10 * PERIOD_NS) is None  # no scan yet
         node._last_stamp = 0
         base = node.mount @ node.measured_prior(10 * PERIOD_NS) @ invert(node.mount)
         assert np.arctan2(base[1, 0], base[0, 0]) == pytest.approx(0.2, abs=1e-9)
         assert np.hypot(*base[:2, 3]) == pytest.approx(2 * 5.0 / 0.2 * np.sin(0.1), abs=0.01)  # the arc's chord
         node.on_twist(measurement(PERIOD_NS, 1.0, 0.0))  # a restarted stream
-        assert list(node.vehicle.twists) == [(PERIOD_NS, 1.0, 0.0)]
+        assert list(node.vehicle.twists.samples) == [(PERIOD_NS, 1.0, 0.0)]
         node._last_stamp = 100 * PERIOD_NS  # measurements ten seconds before the scans: stopped, or another clock
         assert node.measured_prior(101 * PERIOD_NS) is None and node.said_no_twist
     finally:

@@ -7,8 +7,8 @@ import pytest
 
 from ssf_common.geometry.se3 import invert, make_pose
 from ssf_odom_node.core.odometry import OdomStep
-from ssf_odom_node.core.vehicle import (VehicleMotion, command_prior, mount_matrix, next_scan_estimate, speed_ahead,
-                                        to_base)
+from ssf_common.vehicle import mount_matrix
+from ssf_odom_node.core.vehicle import VehicleMotion, command_prior, next_scan_estimate, speed_ahead, to_base
 
 PERIOD_NS = 100_000_000
 MOUNT = (1.2, 0.0, 1.8, 0.0, 0.0, 0.0)
@@ -75,11 +75,11 @@ def test_measurements_are_the_measured_prior_and_repeats_and_restarts_are_handle
     for k in range(1, 11):
         motion.add_twist(k * PERIOD_NS, 5.0, 0.2)
     motion.add_twist(10 * PERIOD_NS, 9.0, 0.0)  # the same sample again
-    assert len(motion.twists) == 10
+    assert len(motion.twists.samples) == 10
     assert motion.measured(None, 10 * PERIOD_NS, mount) == (None, None)  # no scan yet
     moved, newest = motion.measured(0, 10 * PERIOD_NS, mount)
     base = mount @ moved @ invert(mount)
     assert newest == 10 * PERIOD_NS and np.hypot(*base[:2, 3]) == pytest.approx(2 * 5.0 / 0.2 * np.sin(0.1), abs=0.01)
     assert motion.measured(100 * PERIOD_NS, 101 * PERIOD_NS, mount) == (None, 10 * PERIOD_NS)  # they stopped
     motion.add_twist(PERIOD_NS, 1.0, 0.0)
-    assert list(motion.twists) == [(PERIOD_NS, 1.0, 0.0)]
+    assert list(motion.twists.samples) == [(PERIOD_NS, 1.0, 0.0)]

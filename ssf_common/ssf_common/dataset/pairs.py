@@ -48,6 +48,8 @@ class ScanPair:
     boxes1: np.ndarray | None = None  # (M, 11) float64 true objects at t in scan t's frame: BOX_COLUMNS
     time1: np.ndarray | None = None  # (N,) float32 each point's time, s relative to scan t's stamp (None: instant)
     time2: np.ndarray | None = None  # (M,) float32 the same for scan t+1
+    measured: np.ndarray | None = None  # (4, 4) float64 the sensor's motion over scan t+1's sweep as the vehicle
+    # measured it (wheel speed, gyro), scan t's frame -> scan t+1's as `ego`; None: not measured, or instant sweeps
 
     @property
     def objects1(self) -> Obstacles | None:
@@ -89,7 +91,7 @@ def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.n
               instance1: np.ndarray | None = None, class1: np.ndarray | None = None, pose1: np.ndarray | None = None,
               pose2: np.ndarray | None = None, mask1: np.ndarray | None = None,
               boxes1: np.ndarray | None = None, time1: np.ndarray | None = None,
-              time2: np.ndarray | None = None) -> ScanPair:
+              time2: np.ndarray | None = None, measured: np.ndarray | None = None) -> ScanPair:
     """A ScanPair with canonical dtypes; missing labels are static, unknown class, identity poses, instant sweeps."""
     pc1 = np.ascontiguousarray(np.asarray(pc1)[:, :3], dtype=np.float32)
     count = pc1.shape[0]
@@ -106,6 +108,7 @@ def make_pair(pc1: np.ndarray, pc2: np.ndarray, flow: np.ndarray, dynamic1: np.n
         boxes1=None if boxes1 is None else np.asarray(boxes1, dtype=np.float64).reshape(-1, len(BOX_COLUMNS)),
         time1=None if time1 is None else np.asarray(time1, dtype=np.float32).reshape(-1),
         time2=None if time2 is None else np.asarray(time2, dtype=np.float32).reshape(-1),
+        measured=None if measured is None else np.asarray(measured, dtype=np.float64).reshape(4, 4),
     )
 
 
@@ -123,9 +126,9 @@ def write_pair(path: str | Path, pair: ScanPair) -> Path:
 
 _SHAPES = {"pc1": ("N", 3), "pc2": (None, 3), "flow": ("N", 3), "dynamic1": ("N",), "instance1": ("N",),
            "class1": ("N",), "pose1": (4, 4), "pose2": (4, 4), "mask1": ("N",), "boxes1": (None, len(BOX_COLUMNS)),
-           "time1": ("N",), "time2": (None,)}
+           "time1": ("N",), "time2": (None,), "measured": (4, 4)}
 _KINDS = {"pc1": "f", "pc2": "f", "flow": "f", "pose1": "f", "pose2": "f", "mask1": "f", "boxes1": "f", "time1": "f", "time2": "f",
-          "dynamic1": "biu", "instance1": "iu", "class1": "iu"}
+          "measured": "f", "dynamic1": "biu", "instance1": "iu", "class1": "iu"}
 
 
 _KIND_NAMES = {"f": "floats", "biu": "booleans or integers", "iu": "integers"}

@@ -82,6 +82,14 @@ def measured_motion(samples: Sequence[tuple[int, float, float]], start_ns: int, 
     return planar_motion(x, y, yaw, mount)
 
 
+def measured_sweep(samples: Sequence[tuple[int, float, float]], start_ns: int, end_ns: int,
+                   mount: np.ndarray | None = None) -> np.ndarray | None:
+    """The sensor's measured motion from start_ns to end_ns (`measured_motion`) in the ego motion's convention: points
+    of the frame then into the frame now (a sweep's deskewing motion); None where `measured_motion` has none."""
+    motion = measured_motion(samples, start_ns, end_ns, mount)
+    return None if motion is None else invert(motion)
+
+
 def planar_motion(x: float, y: float, yaw: float, mount: np.ndarray | None = None) -> np.ndarray:
     """The vehicle frame then <- the vehicle frame now (4x4) of a planar move, or of a frame `mount`ed on it."""
     motion = yaw_matrix(yaw)

@@ -297,7 +297,8 @@ class ClosedLoop:
         true_pose = self.world_to_odom @ frame.base_pose
         if self.ssf_pose is None:
             return true_pose, self.world_to_odom @ frame.pose, self.world_to_odom, frame.ego.speed
-        lidar_pose = self.ssf_pose.update(frame.stamp_ns, frame.scan.points, self.sent, frame.scan.time)
+        lidar_pose = self.ssf_pose.update(frame.stamp_ns, frame.scan.points, self.sent, frame.scan.time,
+                                          frame.measured_sweep)
         pose = self.ssf_pose.base_pose
         self.pose_errors.append(float(np.linalg.norm(pose[:3, 3] - true_pose[:3, 3])))
         return pose, lidar_pose, lidar_pose @ invert(frame.pose), self.ssf_pose.speed

@@ -5,7 +5,7 @@ from the SSF odometry core with the flow's ego motion, as the graph's odometry n
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -53,9 +53,11 @@ class ConsecutiveScans:
         """The pair perceived for the newest scan (None before the second scan)."""
         return self._pair
 
-    def add(self, stamp_ns: int, points: np.ndarray, time: np.ndarray | None = None) -> PerceivedPair | None:
+    def add(self, stamp_ns: int, points: np.ndarray, time: np.ndarray | None = None,
+            measured_since: Callable[[int], np.ndarray | None] | None = None) -> PerceivedPair | None:
         """The previous scan perceived towards this one (None for the first scan); a scan added twice runs once.
-        time: each point's (s relative to the stamp), where the sweep took its period to turn."""
+        time: each point's (s relative to the stamp), where the sweep took its period to turn; measured_since: the
+        sensor's measured motion from a stamp to this scan (`Frame.measured_sweep`), which deskews it."""
         if self._newest is not None and self._newest[0] == stamp_ns:
             return self._pair
         previous, self._newest = self._newest, (stamp_ns, np.ascontiguousarray(points[:, :3], dtype=np.float32), time)
@@ -63,8 +65,9 @@ class ConsecutiveScans:
         if previous is None or index % self.every:  # the first scan, or one a busy graph drops
             self._pair = None
             return None
+        measured = None if measured_since is None else measured_since(previous[0])
         seen = self.pipeline.perceive(previous[1], self._newest[1], stamp_ns=previous[0], frame_id="lidar", follows=True,
-                                      next_stamp_ns=stamp_ns, time1=previous[2], time2=time)
+                                      next_stamp_ns=stamp_ns, time1=previous[2], time2=time, measured=measured)
         self.iterations.append(seen.fusion.iterations)
         self._pair = PerceivedPair(previous[0], previous[1], seen, previous[2])
         return self._pair
@@ -89,7 +92,7 @@ class SsfPerception:
     def observe(self, observation: Observation) -> Obstacles:
         """Obstacles of the previous scan (stamped then), from its flow towards this scan."""
         frame = observation.frame
-        pair = self.scans.add(frame.stamp_ns, frame.scan.points, frame.scan.time)
+        pair = self.scans.add(frame.stamp_ns, frame.scan.points, frame.scan.time, frame.measured_sweep)
         pose1, self._previous_pose = self._previous_pose, observation.lidar_pose
         if pair is None or pose1 is None:
             return Obstacles.empty(frame.stamp_ns, ODOM_FRAME)
@@ -113,10 +116,12 @@ class SsfPose:
         self.motion = np.eye(4)  # lidar(previous scan) <- lidar(this scan) over the last period
 
     def update(self, stamp_ns: int, points: np.ndarray, commands: Sequence[tuple[int, Any]] = (),
-               time: np.ndarray | None = None) -> np.ndarray:
+               time: np.ndarray | None = None,
+               measured_since: Callable[[int], np.ndarray | None] | None = None) -> np.ndarray:
         """odom <- lidar at this scan: the previous scan's odometry pose carried forward by its flow; `commands`
-        (stamp, command with linear and angular) are those sent so far; `time` each point's (None: an instant sweep)."""
-        pair = self.scans.add(stamp_ns, points, time)
+        (stamp, command with linear and angular) are those sent so far; `time` each point's (None: an instant sweep);
+        measured_since as `ConsecutiveScans.add` takes it."""
+        pair = self.scans.add(stamp_ns, points, time, measured_since)
         if pair is None:
             if self.odometry.steps:  # no answer for this scan: on by the last period's motion
                 self.lidar_pose = self.lidar_pose @ self.motion

@@ -70,12 +70,13 @@ class OdomPerception:
     def __call__(self, scan: SimScan) -> Perceived:
         """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
         started = time.perf_counter()
-        sweeps = pair_times(scan.time, scan.next_time, self.period)
+        deskew_measured = self.pipeline is None or self.pipeline.config.measured_deskew
+        sweeps = pair_times(scan.time, scan.next_time, self.period, scan.next_measured if deskew_measured else None)
         timed = {} if sweeps is None else {"sweeps": sweeps}
         plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points, **timed).flow
         if self.masks is OdomMaskSource.SEG:
             result = self.pipeline.perceive(scan.points, scan.next_points, follows=True, time1=scan.time,
-                                            time2=scan.next_time).fusion  # consecutive scans
+                                            time2=scan.next_time, measured=scan.next_measured).fusion  # consecutive
             return Perceived(plain, result.flow, result.segmentation.dynamic_prob, (time.perf_counter() - started) * 1e3,
                              result.ego)
         if self.masks is OdomMaskSource.GT:

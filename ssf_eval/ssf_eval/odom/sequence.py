@@ -12,7 +12,6 @@ from sim_bridge.dataset.export import simulate, warmup_frames
 from sim_bridge.ros_messages import agent_obstacles
 from sim_bridge.scenario import Scenario, load_scenario
 from sim_bridge.simulator import Frame
-from ssf_common.geometry.kinematics import measured_motion
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import Obstacles
 
@@ -34,6 +33,8 @@ class SimScan:
     measured_motion: np.ndarray | None = None  # (4, 4) last scan's sensor frame <- this one's, by the odometer
     time: np.ndarray | None = None  # (N,) float32 each point's time, s relative to the stamp (all 0: an instant sweep)
     next_time: np.ndarray | None = None  # (M,) the same for scan t+1
+    next_measured: np.ndarray | None = None  # (4, 4) the sensor's motion over scan t+1's sweep by the odometer, as the
+    # flow deskews with it (points of scan t's frame into scan t+1's)
 
 
 def scenario_of(name: str, agents: int | None = None, overrides: dict | None = None) -> Scenario:
@@ -45,11 +46,8 @@ def scenario_of(name: str, agents: int | None = None, overrides: dict | None = N
 def odometer_motion(frame: Frame, dt: float) -> np.ndarray | None:
     """The sensor's motion over the step that ended at `frame` (that step's sensor frame <- this one's) as the
     vehicle's odometer measured it."""
-    if frame.measured is None:
-        return None
-    sample = [(frame.stamp_ns, frame.measured.speed, frame.measured.yaw_rate)]
-    return measured_motion(sample, frame.stamp_ns - int(round(dt * 1e9)), frame.stamp_ns,
-                           invert(frame.base_pose) @ frame.pose)
+    sweep = frame.measured_sweep(frame.stamp_ns - int(round(dt * 1e9)))
+    return None if sweep is None else invert(sweep)
 
 
 def sim_scans(scenario: Scenario, seed: int, frames: int, warmup_s: float) -> Iterator[SimScan]:
@@ -63,5 +61,5 @@ def sim_scans(scenario: Scenario, seed: int, frames: int, warmup_s: float) -> It
             yield SimScan(previous.index - skip, previous.stamp_ns, previous.scan.points, frame.scan.points,
                           frame.flow.dynamic, previous.scan.instance, previous.pose,
                           agent_obstacles(previous.agents.take(near), previous.stamp_ns), odometer_motion(previous, dt),
-                          previous.scan.time, frame.scan.time)
+                          previous.scan.time, frame.scan.time, frame.measured_sweep(previous.stamp_ns))
         previous = frame

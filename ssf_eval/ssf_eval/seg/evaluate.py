@@ -63,7 +63,7 @@ def evaluate_segmentation(methods: Sequence[Method], pairs: Iterable[ScanPair], 
             if method.segmenter is None:
                 assert perception is not None
                 result = perception.perceive(pair.pc1, pair.pc2, follows=index not in sequence_starts,
-                                             time1=pair.time1, time2=pair.time2)
+                                             time1=pair.time1, time2=pair.time2, measured=pair.measured)
                 segmentation, obstacles, rounds = result.fusion.segmentation, result.found.moving, result.fusion.iterations
                 times[method.label].append((time.perf_counter() - started) * 1e3)
             else:
@@ -124,7 +124,7 @@ def evaluate_iterations(perception: PerceptionChain, pairs: Iterable[ScanPair],
     converged_at: list[int | None] = []
     for index, pair in enumerate(pairs):
         result = perception.perceive(pair.pc1, pair.pc2, follows=index not in sequence_starts, time1=pair.time1,
-                                     time2=pair.time2).fusion
+                                     time2=pair.time2, measured=pair.measured).fusion
         taken.append(result.iterations)
         converged_at.append(result.iterations - 1 if result.converged else None)
         for n in range(iterations):

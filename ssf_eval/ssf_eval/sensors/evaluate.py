@@ -111,7 +111,7 @@ class SensorEvaluator:
             parts.segmenter.append(seg_counts(segmentation, pair))
             started = time.perf_counter()
             loop = self.perception.perceive(pair.pc1, pair.pc2, follows=index > 0, time1=pair.time1,
-                                            time2=pair.time2).fusion
+                                            time2=pair.time2, measured=pair.measured).fusion
             parts.loop_ms.append((time.perf_counter() - started) * 1e3)
             parts.loop_flow.append(score_flow(loop.flow, pair.flow, pair.dynamic1))
             parts.loop_seg.append(seg_counts(loop.segmentation, pair))

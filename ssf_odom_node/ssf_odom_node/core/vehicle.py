@@ -9,23 +9,13 @@ import threading
 
 import numpy as np
 
-from ssf_common.geometry.kinematics import commanded_motion, forward_speed, measured_motion
+from ssf_common.geometry.kinematics import commanded_motion, forward_speed
 from ssf_common.geometry.se3 import invert
 from ssf_common.records import OdometryEstimate
+from ssf_common.vehicle import MeasuredTwists
 from ssf_odom_node.core.odometry import OdomStep
 
 COMMANDS_KEPT = 600  # velocity commands kept for the motion prior: a minute at 10 Hz, far longer than any gap
-TWISTS_KEPT = 6000  # measured twists kept: a minute at 100 Hz
-
-
-def mount_matrix(values: tuple[float, ...]) -> np.ndarray:
-    """4x4 base_link <- sensor of x y z roll pitch yaw."""
-    from scipy.spatial.transform import Rotation
-
-    matrix = np.eye(4)
-    matrix[:3, :3] = Rotation.from_euler("xyz", values[3:]).as_matrix()
-    matrix[:3, 3] = values[:3]
-    return matrix
 
 
 def to_base(step: OdomStep, mount: np.ndarray, odom_frame: str, base_frame: str) -> OdometryEstimate:
@@ -69,9 +59,9 @@ class VehicleMotion:
     """What the vehicle was told and what it measured, kept for the motion priors between scans (thread-safe: the
     subscriptions add while the odometry's worker reads)."""
 
-    def __init__(self, commands_kept: int = COMMANDS_KEPT, twists_kept: int = TWISTS_KEPT) -> None:
+    def __init__(self, commands_kept: int = COMMANDS_KEPT) -> None:
         self.commands: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=commands_kept)
-        self.twists: collections.deque[tuple[int, float, float]] = collections.deque(maxlen=twists_kept)
+        self.twists = MeasuredTwists()
         self._lock = threading.Lock()
 
     def add_command(self, now_ns: int, linear: float, angular: float) -> None:
@@ -82,13 +72,8 @@ class VehicleMotion:
             self.commands.append((now_ns, linear, angular))
 
     def add_twist(self, stamp_ns: int, linear: float, angular: float) -> None:
-        """One measurement of speed and yaw rate; the same sample again is skipped, stamps gone back forget the older."""
-        with self._lock:
-            if self.twists and stamp_ns <= self.twists[-1][0]:
-                if stamp_ns == self.twists[-1][0]:
-                    return
-                self.twists.clear()
-            self.twists.append((stamp_ns, linear, angular))
+        """One measurement of speed and yaw rate (see `MeasuredTwists.add`)."""
+        self.twists.add(stamp_ns, linear, angular)
 
     def commanded(self, last_stamp_ns: int | None, stamp_ns: int, speed: float, limits: tuple[float, float],
                   mount: np.ndarray) -> np.ndarray | None:
@@ -101,8 +86,4 @@ class VehicleMotion:
                  mount: np.ndarray) -> tuple[np.ndarray | None, int | None]:
         """The sensor's motion from the last scan to this one as the measurements give it (None before the first scan,
         without measurements, or when they stopped), and the newest measurement's stamp (None: none came)."""
-        if last_stamp_ns is None:
-            return None, None
-        with self._lock:
-            twists = list(self.twists)
-        return measured_motion(twists, last_stamp_ns, stamp_ns, mount), (twists[-1][0] if twists else None)
+        return self.twists.motion(last_stamp_ns, stamp_ns, mount)
