@@ -35,9 +35,9 @@ class PerceptionConfig(Section):
     renamed: ClassVar[dict[str, str]] = {"dt": "scan_period"}
     scan_period: float = Field(0.1, gt=0.0, description="time between consecutive scans (s) where the scans carry no "
                                "stamps")
-    measured_deskew: bool = Field(True, description="deskew each sweep by the vehicle's measured motion where the "
-                                  "source has it (the simulator's odometer; in the graph the flow node's twist_topic), "
-                                  "else at the last pair's motion")
+    measured_motion: bool = Field(True, description="the vehicle's measured motion (wheel speed, gyro) where the "
+                                  "source has it (the simulator's odometer; in the graph the flow node's twist_topic): "
+                                  "it deskews each sweep and guides and vets the flow's ego motion")
 
 
 class ChainTimes(NamedTuple):
@@ -87,7 +87,7 @@ class PerceptionChain:
         (unless a mask is given). Velocities use the stamps' interval when next_stamp_ns is given, else config.scan_period.
         time1, time2: each point's time (s relative to its scan's stamp), where the sweeps took their period to turn:
         the flow deskews with them (flow.deskew), as the flow node does; measured: the sensor's motion over scan t+1's
-        sweep as the vehicle measured it (`ScanPair.measured`), which deskews it (measured_deskew)."""
+        sweep as the vehicle measured it (`ScanPair.measured`), which deskews it and guides the ego motion (measured_motion)."""
         radius = self.config.fusion.prior_radius
         started = time.process_time()
         dt = self.config.scan_period if next_stamp_ns is None else (next_stamp_ns - stamp_ns) * 1e-9
@@ -96,7 +96,7 @@ class PerceptionChain:
             mask = carry_prior(self.source, pc1)
         carried = time.process_time()
         # 2. flow with its ego motion ⇄ segmentation, until they agree
-        measured = measured if self.config.measured_deskew else None
+        measured = measured if self.config.measured_motion else None
         fusion = self.loop.run(pc1, pc2, mask, pair_times(time1, time2, dt, measured))
         looped = time.process_time()
         ego = EgoMotion(stamp_ns, stamp_ns + int(round(dt * 1e9)), frame_id, fusion.ego, fusion.iterations - 1)

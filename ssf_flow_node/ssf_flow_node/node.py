@@ -1,6 +1,7 @@
 """ssf_flow_node: scene flow between consecutive scans on /lidar/points, conditioned on the temporal prior the last
 scan left (/ssf/prior), re-estimated for each mask hint; the flow on /ssf/flow and its ego motion on /ssf/ego_motion.
-Sweeps that carry per-point time are deskewed, by the vehicle's measured motion where it is given (twist_topic)."""
+Sweeps that carry per-point time are deskewed, by the vehicle's measured motion where it is given (twist_topic), which
+also guides and vets the ego motion."""
 
 from __future__ import annotations
 
@@ -37,8 +38,9 @@ class FlowNodeVehicle(MountConfig):
     twist_topic: str = Field("", description="the vehicle's measured motion (geometry_msgs/TwistStamped of base_link: "
                              "wheel speed, yaw-rate gyro), e.g. /vehicle/twist from the simulator: each sweep is "
                              "deskewed by its own measured motion, as IMU or wheel deskewing does on a car, and "
-                             "estimated once; empty: none, each sweep is deskewed at the last pair's motion and "
-                             "estimated again where the car braked or steered")
+                             "estimated once, and the ego motion starts from it and is vetted by it (traffic moving "
+                             "with the car cannot make it stand still); empty: none, each sweep is deskewed at the "
+                             "last pair's motion and estimated again where the car braked or steered")
 
 
 @dataclass(frozen=True)
@@ -144,7 +146,7 @@ class FlowNode(Node):
     def measured_sweep(self, scan: ReceivedScan, next_scan: ReceivedScan) -> np.ndarray | None:
         """The sensor's motion over the next scan's sweep as the vehicle measured it (None: not asked for, or none
         came in time for it: then the sweep is deskewed at the last pair's motion, counted)."""
-        if not self.vehicle.twist_topic or next_scan.time is None:
+        if not self.vehicle.twist_topic:
             return None
         motion = self.twists.sweep(scan.stamp_ns, next_scan.stamp_ns, self.mount)
         if motion is None:

@@ -198,7 +198,7 @@ def test_the_alignment_that_only_judges_a_steady_masked_one_is_not_restarted():
             asked.append(restarts)
             return masked if len(asked) == 1 else make_pose(0.0, 0.0, 0.0, 0.0)  # the judge: pulled to standing still
 
-        state = SimpleNamespace(source=np.zeros((100, 3)), order=np.arange(100), prior=prior, base_ego=None, ego=None,
+        state = SimpleNamespace(source=np.zeros((100, 3)), order=np.arange(100), prior=prior, measured=None, base_ego=None, ego=None,
                                 matcher=SimpleNamespace(align=align))
         dynamic = np.arange(100) < 60  # most points: beyond ego_mask_share, so the masked one is never taken at once
         pair_ego_motion(state, dynamic, config)

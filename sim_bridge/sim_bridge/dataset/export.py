@@ -115,7 +115,7 @@ def _pairs_of(frames: Iterator[Frame], seed: int, protocol: PairProtocol) -> Ite
             boxes1=visible_boxes(previous),
             time1=previous.scan.time[first] if swept else None,
             time2=frame.scan.time[second] if swept else None,
-            measured=frame.measured_sweep(previous.stamp_ns) if swept else None,
+            measured=frame.measured_sweep(previous.stamp_ns),
         )
         yield pair, previous, frame
         previous = frame

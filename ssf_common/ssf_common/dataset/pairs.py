@@ -49,7 +49,7 @@ class ScanPair:
     time1: np.ndarray | None = None  # (N,) float32 each point's time, s relative to scan t's stamp (None: instant)
     time2: np.ndarray | None = None  # (M,) float32 the same for scan t+1
     measured: np.ndarray | None = None  # (4, 4) float64 the sensor's motion over scan t+1's sweep as the vehicle
-    # measured it (wheel speed, gyro), scan t's frame -> scan t+1's as `ego`; None: not measured, or instant sweeps
+    # measured it (wheel speed, gyro), scan t's frame -> scan t+1's as `ego`; None: not measured
 
     @property
     def objects1(self) -> Obstacles | None:

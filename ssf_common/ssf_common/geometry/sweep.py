@@ -24,8 +24,8 @@ STEPS = 4096  # shares of a period between the poses the points take: at 10 Hz a
 
 
 class PairTimes(NamedTuple):
-    """Per-point time of scan t and of scan t+1 (s relative to each one's stamp), the time between the stamps, and
-    the sensor's motion over scan t+1's sweep where the vehicle measured it."""
+    """Per-point time of scan t and of scan t+1 (s relative to each one's stamp; empty: an instant sweep), the time
+    between the stamps, and the sensor's motion over scan t+1's sweep where the vehicle measured it."""
 
     time1: np.ndarray
     time2: np.ndarray
@@ -40,10 +40,11 @@ def timed(time: np.ndarray | None) -> bool:
 
 def pair_times(time1: np.ndarray | None, time2: np.ndarray | None, period: float,
                measured: np.ndarray | None = None) -> PairTimes | None:
-    """The pair's times when either scan took its period to turn (a scan without time then counts as instant), else
-    None: nothing to deskew. measured: the sensor's motion between the stamps as the vehicle's own sensors gave it
-    (wheel speed and gyro: `measured_sweep`), which deskews scan t+1 where given."""
-    if not (timed(time1) or timed(time2)):
+    """The pair's times when either scan took its period to turn (a scan without time then counts as instant), and the
+    sensor's motion between the stamps as the vehicle's own sensors measured it (wheel speed and gyro:
+    `measured_sweep`), which deskews scan t+1 and guides the ego motion where given; None: neither, nothing to
+    deskew."""
+    if not (timed(time1) or timed(time2)) and measured is None:
         return None
     return PairTimes(*(np.zeros(0, np.float32) if time is None else np.asarray(time, np.float32)
                        for time in (time1, time2)), float(period), None if measured is None else np.asarray(measured, np.float64))

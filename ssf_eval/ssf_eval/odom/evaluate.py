@@ -70,8 +70,8 @@ class OdomPerception:
     def __call__(self, scan: SimScan) -> Perceived:
         """Flow (without and with the mask) and the dynamic probability of every point of the scan."""
         started = time.perf_counter()
-        deskew_measured = self.pipeline is None or self.pipeline.config.measured_deskew
-        sweeps = pair_times(scan.time, scan.next_time, self.period, scan.next_measured if deskew_measured else None)
+        measured = self.pipeline is None or self.pipeline.config.measured_motion
+        sweeps = pair_times(scan.time, scan.next_time, self.period, scan.next_measured if measured else None)
         timed = {} if sweeps is None else {"sweeps": sweeps}
         plain = None if self.plain is None else self.plain.estimate(scan.points, scan.next_points, **timed).flow
         if self.masks is OdomMaskSource.SEG:

@@ -32,12 +32,18 @@ class FlowEstimator(Protocol):
         ...
 
 
-def get_ready(estimator: FlowEstimator, pc1: np.ndarray, pc2: np.ndarray) -> None:
+def get_ready(estimator: FlowEstimator, pc1: np.ndarray, pc2: np.ndarray, measured: np.ndarray | None = None) -> None:
     """Do the work on a pair that does not need its mask (an estimator that keeps such work has `get_ready`), so that
-    the mask, when it comes a little later, finds it done."""
+    the mask, when it comes a little later, finds it done (`measured`: see `measured_prior`)."""
     ready = getattr(estimator, "get_ready", None)
     if ready is not None:
-        ready(pc1, pc2)
+        ready(pc1, pc2, **measured_prior(estimator, measured))
+
+
+def measured_prior(estimator: FlowEstimator, measured: np.ndarray | None) -> dict[str, np.ndarray]:
+    """The keyword that hands an estimator the pair's ego motion as the vehicle measured it, where it takes one
+    (`takes_measured`: its alignment starts from it and judges by it, in place of the previous pair's motion)."""
+    return {"measured": measured} if measured is not None and getattr(estimator, "takes_measured", False) else {}
 
 
 class PreparedPair(NamedTuple):

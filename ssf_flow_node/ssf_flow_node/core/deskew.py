@@ -3,7 +3,7 @@ each raw point's flow the ego motion plus its own motion.
 
 1. Deskew: every point of a scan is moved into the sensor frame at the scan's stamp by the ego motion along the ground
    (x, y, yaw) interpolated across its sweep at constant velocity: the sweep's own motion where the vehicle measured
-   it (wheel speed and gyro, `PairTimes.measured`: as IMU or wheel deskewing on a car), else the last pair's ego
+   it (wheel speed and gyro, `PairTimes.measured`: as IMU or wheel deskewing on a car; the estimator also starts its ego motion from it), else the last pair's ego
    motion. A scan is deskewed when it first comes, so that scan t+1 of one pair is scan t of the next exactly (the
    estimator carries its motions across that link), and so is a scan t that comes after pairs a node skipped to keep
    up; a stream's first pair is taken as it is (or at the measured motion), then deskewed by its own ego motion.
@@ -33,7 +33,7 @@ import numpy as np
 
 from ssf_common.geometry.se3 import invert, rigid_flow, rotation_angle
 from ssf_common.geometry.sweep import PairTimes, check_time, deskew, planar, timed
-from ssf_flow_node.core.base import FlowEstimator, FlowResult, fingerprint, get_ready
+from ssf_flow_node.core.base import FlowEstimator, FlowResult, fingerprint, get_ready, measured_prior
 from ssf_flow_node.core.preprocess import check_scan
 
 SWEEP_HISTORY = 3  # deskewed scans kept: a stream's scan t+1 is the next pair's scan t
@@ -74,20 +74,21 @@ class DeskewingEstimator:
                  sweeps: PairTimes | None = None, follows: bool = False) -> FlowResult:
         """Flow for every point of pc1 between the two stamps; deskewed where `sweeps` carries time. follows: pc1 comes
         later in the stream than the last pair's scan t+1 (the caller skipped the pairs between to keep up)."""
+        measured = {} if sweeps is None else measured_prior(self.estimator, sweeps.measured)
         if not self.deskews(sweeps):
-            return self.estimator.estimate(pc1, pc2, mask)
+            return self.estimator.estimate(pc1, pc2, mask, **measured)
         # 1. both scans at their stamps
         scan1, scan2, xyz1 = self.deskewed(pc1, pc2, sweeps, follows)
         # 2. flow and ego motion between the stamps; where the ego motion found is not the one scan t+1 was deskewed
         #    with (the vehicle braked or turned in), scan t+1 is deskewed again with it and the estimate taken again
         #    (and so is scan t in a stream's first pair, whose sweep no pair has measured)
-        result = self.estimator.estimate(scan1.points, scan2.points, mask)
+        result = self.estimator.estimate(scan1.points, scan2.points, mask, **measured)
         ego = planar(result.ego)
         if not settled(ego, scan2.motion):
             if scan1.swept is None:  # no pair measured scan t's sweep: both at this pair's motion
                 scan1 = self.store(scan1.key, xyz1, sweeps.time1, ego, sweeps.period)
             scan2 = self.store(scan2.key, check_scan(pc2, "scan t+1"), sweeps.time2, ego, sweeps.period)
-            result = self.estimator.estimate(scan1.points, scan2.points, mask)
+            result = self.estimator.estimate(scan1.points, scan2.points, mask, **measured)
             ego = planar(result.ego)
             self.estimated_again += 1
         self.motion = ego
@@ -99,11 +100,12 @@ class DeskewingEstimator:
     def get_ready(self, pc1: np.ndarray, pc2: np.ndarray, sweeps: PairTimes | None = None,
                   follows: bool = False) -> None:
         """The pair's work that needs no mask, on the scans it will be asked about."""
+        measured = None if sweeps is None else sweeps.measured
         if not self.deskews(sweeps):
-            get_ready(self.estimator, pc1, pc2)
+            get_ready(self.estimator, pc1, pc2, measured)
             return
         scan1, scan2, _ = self.deskewed(pc1, pc2, sweeps, follows)
-        get_ready(self.estimator, scan1.points, scan2.points)
+        get_ready(self.estimator, scan1.points, scan2.points, measured)
 
     def deskews(self, sweeps: PairTimes | None) -> bool:
         """Whether this pair is deskewed: on, and either scan took its period to turn."""

@@ -76,6 +76,11 @@ class RigidConfig(Section):
                                  "g): where only the alignment without the mask's dynamic points is a change from the "
                                  "previous pair's motion a vehicle can make in dt, it is taken (traffic moving with the ego "
                                  "pulls the other towards standing still)")
+    measured_gate: float = Field(0.1, gt=0.0, description="where the vehicle measured the pair's motion (wheel speed, "
+                                 "gyro: within 2-3 cm a period), an ego motion this far from it (m, over a 1 m radius) "
+                                 "is not the car's: traffic moving with it, a vehicle close ahead filling the scan, pulls "
+                                 "the alignment towards standing still; it is refined again from the measured motion, and "
+                                 "where that is as far, the measured motion is taken")
     ego_vouch: bool = Field(True, description="where the mask calls enough points dynamic, the alignment without them is "
                             "taken at once when it is a change of the previous pair's motion a vehicle can make "
                             "(ego_max_accel, ego_mask_share): the alignment on every point is made only to judge one "

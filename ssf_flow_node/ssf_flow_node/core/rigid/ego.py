@@ -1,5 +1,6 @@
 """Step 1, the ego motion: aligned on every point, and without the mask's movers where it calls enough of them
-dynamic; constant velocity (the previous pair's motion) judges between them."""
+dynamic; constant velocity (the previous pair's motion) judges between them, or the vehicle's measured motion where
+it measured the pair's, which also vetoes an alignment the car cannot have driven."""
 
 from __future__ import annotations
 
@@ -20,32 +21,43 @@ def pair_ego_motion(state: PairState, dynamic: np.ndarray | None, config: RigidC
     step by step; traffic moving with the ego pulls the first towards standing still, a jump no vehicle makes
     between two scans."""
     if dynamic is None:  # a question without a mask leaves the stream's motion (the next pair's prior) as it was
-        state.ego = every_point(state) if state.ego is None else state.ego
-        return every_point(state)
+        state.ego = every_point(state, config) if state.ego is None else state.ego
+        return every_point(state, config)
     share = float(np.mean(dynamic)) if dynamic.size else 0.0
     if np.count_nonzero(dynamic) <= config.ego_refit * state.source.shape[0]:
-        state.ego = every_point(state)
+        state.ego = every_point(state, config)
         return state.ego
     keep = np.ones(state.source.shape[0], bool)
     keep[: dynamic.size] = ~dynamic
-    masked = state.matcher.align(state.source[state.order[keep[state.order]]], ordered=True, prior=state.prior)
+    still = state.source[state.order[keep[state.order]]]
+    masked = vetted(state, still, state.matcher.align(still, ordered=True, prior=state.prior), config)
     if config.ego_vouch and state.prior is not None and plausible(masked, state.prior, share, config):
         state.ego = masked
         return state.ego
     # made only to judge the masked one: where that one is a change of the previous pair's motion a vehicle can make,
     # restarting this one (from the other samples and that motion) cannot change the answer beyond a narrow case
-    base = every_point(state, restarts=config.ego_judge_restarts or not steady(masked, state.prior, config))
+    base = every_point(state, config, restarts=config.ego_judge_restarts or not steady(masked, state.prior, config))
     vouched = motion_gap(masked, base) <= config.ego_tolerance or (
         state.prior is not None and nearer_prior(masked, base, state.prior, config, share))
     state.ego = masked if vouched else base
     return state.ego
 
-def every_point(state: PairState, restarts: bool = True) -> np.ndarray:
+def every_point(state: PairState, config: RigidConfig, restarts: bool = True) -> np.ndarray:
     """The ego motion aligned on every point of the pair (once per pair; `restarts`: see ScanMatcher.align)."""
     if state.base_ego is None:
-        state.base_ego = state.matcher.align(state.source[state.order], ordered=True, prior=state.prior,
-                                             restarts=restarts)
+        source = state.source[state.order]
+        state.base_ego = vetted(state, source, state.matcher.align(source, ordered=True, prior=state.prior,
+                                                                   restarts=restarts), config)
     return state.base_ego
+
+
+def vetted(state: PairState, source: np.ndarray, motion: np.ndarray, config: RigidConfig) -> np.ndarray:
+    """An alignment, where it is one the car can have driven: within measured_gate of the pair's measured motion (or
+    nothing was measured). Else the refinement from the measured motion, where that one is; else the measured motion."""
+    if state.measured is None or motion_gap(motion, state.measured) <= config.measured_gate:
+        return motion
+    again = state.matcher.refine(source, state.measured, ordered=True)
+    return again if motion_gap(again, state.measured) <= config.measured_gate else state.measured
 
 def plausible(motion: np.ndarray, prior: np.ndarray, dynamic_share: float, config: RigidConfig) -> bool:
     """Whether a motion is a change of the previous pair's that a vehicle can make in dt (ego_max_accel), aligned

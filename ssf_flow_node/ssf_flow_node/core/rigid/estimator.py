@@ -25,6 +25,7 @@ class RigidFlowEstimator:
     """Ego motion by robust ICP, then rigid motions of clusters of the non-ground points."""
 
     name = "rigid"
+    takes_measured = True  # the pair's measured ego motion, where given, stands in for the previous pair's
 
     def __init__(self, preprocess: PreprocessConfig, registration: RegistrationConfig, config: RigidConfig) -> None:
         self.preprocess = preprocess
@@ -34,10 +35,12 @@ class RigidFlowEstimator:
         self.states: collections.OrderedDict[bytes, PairState] = collections.OrderedDict()  # the last few pairs
         self.scans = ScanCache(preprocess)
 
-    def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None) -> FlowResult:
+    def estimate(self, pc1: np.ndarray, pc2: np.ndarray, mask: np.ndarray | None = None,
+                 measured: np.ndarray | None = None) -> FlowResult:
         """Flow for every point of pc1; the ego motion is also aligned without the mask's dynamic points, and clusters the
-        mask calls dynamic need fewer points and less evidence to move."""
-        state = self.pair_state(pc1, pc2)
+        mask calls dynamic need fewer points and less evidence to move. measured: the pair's ego motion as the vehicle
+        measured it (wheel speed, gyro): the alignment's prior and judge, where the previous pair's motion is else."""
+        state = self.pair_state(pc1, pc2, measured)
         pair = state.pair
         masked = None if mask is None else check_mask(mask, pair.pc1.shape[0])[pair.sample1.indices]
         points1, points2 = pair.sample1.points, pair.sample2.points
@@ -80,11 +83,11 @@ class RigidFlowEstimator:
         state.result = finish(pair, moved - points1, ego, self.preprocess, still)
         return state.result
 
-    def get_ready(self, pc1: np.ndarray, pc2: np.ndarray) -> None:
+    def get_ready(self, pc1: np.ndarray, pc2: np.ndarray, measured: np.ndarray | None = None) -> None:
         """The pair's work that needs no mask (samples, ground split, surfaces, normals), done now and kept."""
-        self.pair_state(pc1, pc2)
+        self.pair_state(pc1, pc2, measured)
 
-    def pair_state(self, pc1: np.ndarray, pc2: np.ndarray) -> PairState:
+    def pair_state(self, pc1: np.ndarray, pc2: np.ndarray, measured: np.ndarray | None = None) -> PairState:
         """The cached work on this pair of scans (the fusion loop asks for the same pair again), or a fresh one."""
         key = fingerprint(pc1, pc2)
         if key in self.states:  # the loop asks again, perhaps after the stream's next pair (a node's mask hint)
@@ -94,7 +97,7 @@ class RigidFlowEstimator:
         first = fingerprint(pc1)
         previous = next((state for state in reversed(self.states.values()) if state.next_key == first), None)
         latest = previous or self.state
-        prior = None if latest is None else latest.ego
+        prior = np.asarray(measured, np.float64) if measured is not None else None if latest is None else latest.ego
         pair = prepare(pc1, pc2, None, self.preprocess, self.scans)
         points1, points2 = pair.sample1.points, pair.sample2.points
         source, target = with_ground(pair.pc1, pair.sample1), with_ground(pair.pc2, pair.sample2)
@@ -117,7 +120,7 @@ class RigidFlowEstimator:
                 bands = Bands(band_points(pair.pc1, pair.height1, self.preprocess),
                               band_points(pair.pc2, pair.height2, self.preprocess))
         self.state = PairState(key, pair, matcher, source, order, above1, above2, above, every, ground1, low, bands,
-                               prior, next_key=fingerprint(pc2))
+                               prior, None if measured is None else prior, next_key=fingerprint(pc2))
         if previous is not None and self.config.carry_pairs > 0 and previous.landed is not None:  # its motions go on
             left = Carried(previous.motion, previous.streak, previous.proven)
             self.state.carried = carry_motions(left, previous.landed, points1, self.config.carry_radius)

@@ -35,7 +35,8 @@ class PairState:
     ground1: np.ndarray | None  # points of the whole scan t on the ground (where it was split off)
     low: TopView | None  # those points seen from above
     bands: Bands | None  # the whole scans' non-ground points below object_height (scan t as sensed)
-    prior: np.ndarray | None = None  # the previous pair's ego motion (a stream's constant velocity)
+    prior: np.ndarray | None = None  # the pair's measured ego motion, else the previous pair's (constant velocity)
+    measured: np.ndarray | None = None  # the pair's ego motion as the vehicle measured it, where it did
     base_ego: np.ndarray | None = None  # the ego motion aligned on every point
     ego: np.ndarray | None = None  # the ego motion of the last estimate with a mask (else the one on every point)
     motion: np.ndarray | None = None  # each sampled point's own motion in the last estimate (after the ego)
