@@ -453,3 +453,11 @@ def test_tukey_icp_without_matches_or_constraints_leaves_the_start():
     one = tukey_icp(np.array([[9.9, 0.0, 0.0], [0.0, 0.0, 0.0]]), target, np.eye(4), 1.0, 10, 1e-6)
     assert np.isfinite(one.transform).all() and one.fitness == 0.5
     assert one.transform[0, 3] == pytest.approx(0.1, abs=1e-6)  # onto the plane x = 10 along its normal
+
+
+def test_displacement_at_a_range_is_the_translation_plus_the_angle_times_the_range():
+    from ssf_common.geometry.se3 import displacement_at, make_pose
+
+    first, second = make_pose(1.0, 0.0, 0.0, 0.0), make_pose(1.0, 0.03, 0.0, np.radians(0.5))
+    assert displacement_at(first, second, 20.0) == pytest.approx(0.03 + np.radians(0.5) * 20.0, rel=1e-6)
+    assert displacement_at(first, first, 50.0) == pytest.approx(0.0, abs=1e-7)

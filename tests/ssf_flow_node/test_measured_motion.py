@@ -58,3 +58,22 @@ def test_an_alignment_the_measurement_agrees_with_is_kept():
     guided = make_estimator("rigid", build(FlowConfig, WHOLE_SCAN)).estimate(pc1, pc2, None,
                                                                           pair_times(None, None, 0.1, measured))
     assert abs(plain.ego[0, 3] + STEP) < 0.01 and abs(guided.ego[0, 3] + STEP) < 0.01
+
+
+def test_an_alignment_turned_a_degree_off_the_measurement_is_refined_from_it():
+    """Translation right, the heading a degree off (a point 20 m away moves 0.35 m): refined again from the measured
+    motion, and where that refinement turns away as far, the measured motion itself."""
+    from types import SimpleNamespace
+
+    from ssf_flow_node.core.rigid.config import RigidConfig
+    from ssf_flow_node.core.rigid.ego import vetted
+
+    measured = make_pose(-1.0, 0.0, 0.0, np.radians(2.0))
+    turned = make_pose(-1.0, 0.0, 0.0, np.radians(3.0))
+    refined = make_pose(-1.0, 0.005, 0.0, np.radians(2.05))
+    for refinement, expected in ((refined, refined), (turned, measured)):
+        state = SimpleNamespace(measured=measured, matcher=SimpleNamespace(refine=lambda source, start, ordered: refinement))
+        np.testing.assert_allclose(vetted(state, np.zeros((10, 3)), turned, RigidConfig()), expected)
+    close = make_pose(-1.01, 0.0, 0.0, np.radians(2.02))  # within 0.1 m at 20 m: kept as aligned
+    state = SimpleNamespace(measured=measured, matcher=None)
+    np.testing.assert_allclose(vetted(state, np.zeros((10, 3)), close, RigidConfig()), close)

@@ -119,6 +119,13 @@ def rotation_angle(transform: np.ndarray) -> float:
     return float(np.arccos(np.clip(cosine, -1.0, 1.0)))
 
 
+def displacement_at(first: np.ndarray, second: np.ndarray, distance: float) -> float:
+    """How far apart (m) two motions put a point `distance` away, at most: the translation between them plus the angle
+    of the rotation between them times the distance."""
+    deviation = invert(np.asarray(first, dtype=np.float64)) @ np.asarray(second, dtype=np.float64)
+    return float(np.linalg.norm(deviation[:3, 3]) + rotation_angle(deviation) * distance)
+
+
 def transform_points(transform: np.ndarray, points: np.ndarray) -> np.ndarray:
     """Apply a 4x4 rigid transform to (N, 3) points; float32 out."""
     return (points @ transform[:3, :3].T + transform[:3, 3]).astype(np.float32)

@@ -31,7 +31,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from ssf_common.geometry.se3 import invert, rigid_flow, rotation_angle
+from ssf_common.geometry.se3 import displacement_at, rigid_flow
 from ssf_common.geometry.sweep import PairTimes, check_time, deskew, planar, timed
 from ssf_flow_node.core.base import FlowEstimator, FlowResult, fingerprint, get_ready, measured_prior
 from ssf_flow_node.core.preprocess import check_scan
@@ -144,5 +144,4 @@ class DeskewingEstimator:
 def settled(ego: np.ndarray, motion: np.ndarray) -> bool:
     """Whether the ego motion found is the one a scan was deskewed with, within what moves its points by less than
     SETTLED_M at SETTLED_RANGE_M."""
-    deviation = invert(motion) @ ego
-    return bool(np.linalg.norm(deviation[:3, 3]) + rotation_angle(deviation) * SETTLED_RANGE_M < SETTLED_M)
+    return displacement_at(motion, ego, SETTLED_RANGE_M) < SETTLED_M

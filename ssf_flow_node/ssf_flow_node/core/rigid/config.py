@@ -77,10 +77,13 @@ class RigidConfig(Section):
                                  "previous pair's motion a vehicle can make in dt, it is taken (traffic moving with the ego "
                                  "pulls the other towards standing still)")
     measured_gate: float = Field(0.1, gt=0.0, description="where the vehicle measured the pair's motion (wheel speed, "
-                                 "gyro: within 2-3 cm a period), an ego motion this far from it (m, over a 1 m radius) "
-                                 "is not the car's: traffic moving with it, a vehicle close ahead filling the scan, pulls "
-                                 "the alignment towards standing still; it is refined again from the measured motion, and "
-                                 "where that is as far, the measured motion is taken")
+                                 "gyro: within 2-3 cm and 0.03 deg a period), an ego motion that puts a point "
+                                 "measured_range away this far (m) from where the measured motion puts it is not the "
+                                 "car's: traffic moving with it, a vehicle close ahead filling the scan, pulls the "
+                                 "alignment towards standing still or turns it with them; it is refined again from the "
+                                 "measured motion, and where that is as far, the measured motion is taken")
+    measured_range: float = Field(20.0, gt=0.0, description="the range (m) at which measured_gate is measured: a "
+                                  "rotation of 0.29 deg moves a point there by 0.1 m")
     ego_vouch: bool = Field(True, description="where the mask calls enough points dynamic, the alignment without them is "
                             "taken at once when it is a change of the previous pair's motion a vehicle can make "
                             "(ego_max_accel, ego_mask_share): the alignment on every point is made only to judge one "

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ssf_common.geometry.se3 import displacement_at
 from ssf_flow_node.core.registration import motion_gap
 from ssf_flow_node.core.rigid.config import RigidConfig
 from ssf_flow_node.core.rigid.pair import PairState
@@ -52,12 +53,17 @@ def every_point(state: PairState, config: RigidConfig, restarts: bool = True) ->
 
 
 def vetted(state: PairState, source: np.ndarray, motion: np.ndarray, config: RigidConfig) -> np.ndarray:
-    """An alignment, where it is one the car can have driven: within measured_gate of the pair's measured motion (or
-    nothing was measured). Else the refinement from the measured motion, where that one is; else the measured motion."""
-    if state.measured is None or motion_gap(motion, state.measured) <= config.measured_gate:
+    """An alignment, where it is one the car can have driven: within measured_gate at measured_range of the pair's
+    measured motion (or nothing was measured). Else the refinement from the measured motion, where that one is; else
+    the measured motion."""
+
+    def near(candidate: np.ndarray) -> bool:
+        return displacement_at(candidate, state.measured, config.measured_range) <= config.measured_gate
+
+    if state.measured is None or near(motion):
         return motion
     again = state.matcher.refine(source, state.measured, ordered=True)
-    return again if motion_gap(again, state.measured) <= config.measured_gate else state.measured
+    return again if near(again) else state.measured
 
 def plausible(motion: np.ndarray, prior: np.ndarray, dynamic_share: float, config: RigidConfig) -> bool:
     """Whether a motion is a change of the previous pair's that a vehicle can make in dt (ego_max_accel), aligned
