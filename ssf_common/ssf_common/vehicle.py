@@ -57,13 +57,15 @@ class MeasuredTwists:
         none came)."""
         if start_ns is None:
             return None, None
-        with self._lock:
-            samples = list(self.samples)
+        samples = self.snapshot()
         return measured_motion(samples, start_ns, end_ns, mount), (samples[-1][0] if samples else None)
 
     def sweep(self, start_ns: int, end_ns: int, mount: np.ndarray) -> np.ndarray | None:
         """The sensor's measured motion over a sweep from start_ns to end_ns as the flow deskews with it
         (`measured_sweep`), or None."""
+        return measured_sweep(self.snapshot(), start_ns, end_ns, mount)
+
+    def snapshot(self) -> list[tuple[int, float, float]]:
+        """The measurements kept, (stamp, speed, yaw rate), as they are now."""
         with self._lock:
-            samples = list(self.samples)
-        return measured_sweep(samples, start_ns, end_ns, mount)
+            return list(self.samples)

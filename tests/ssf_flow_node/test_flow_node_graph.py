@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import numpy as np
@@ -50,9 +51,11 @@ def malformed_clouds() -> dict[str, object]:
     }
 
 
-@pytest.fixture
-def graph():
-    flow_node = FlowNode(argv=["--ros-args", "-p", "report_period_s:=60.0"])
+@contextlib.contextmanager
+def flow_graph(*parameters: str):
+    """A flow node (with `parameters`, NAME:=VALUE) and a probe that publishes scans and mask hints and keeps the flow."""
+    flow_node = FlowNode(argv=["--ros-args", "-p", "report_period_s:=60.0",
+                               *(item for parameter in parameters for item in ("-p", parameter))])
     flow_node.spin_in_thread()
     probe = Node("probe")
     received: list = []
@@ -60,12 +63,20 @@ def graph():
     probe.spin_in_thread()
     scans = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
     hints = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/ssf/mask_hint")
-    assert wait_until(lambda: scans.get_subscription_count() > 0 and hints.get_subscription_count() > 0)
-    yield flow_node, scans, hints, received
-    flow_node.request_shutdown()
-    flow_node.on_shutdown()
-    flow_node.destroy_node()
-    probe.destroy_node()
+    try:
+        assert wait_until(lambda: scans.get_subscription_count() > 0 and hints.get_subscription_count() > 0)
+        yield flow_node, probe, scans, hints, received
+    finally:
+        flow_node.request_shutdown()
+        flow_node.on_shutdown()
+        flow_node.destroy_node()
+        probe.destroy_node()
+
+
+@pytest.fixture
+def graph():
+    with flow_graph() as (flow_node, _probe, scans, hints, received):
+        yield flow_node, scans, hints, received
 
 
 def test_flow_for_replayed_scans_and_malformed_clouds_dropped(graph, capfd):
@@ -149,17 +160,10 @@ def test_sweeps_deskewed_by_the_vehicles_measured_motion(measured):
     from sim_bridge.simulator import MeasuredMotion
     from support import SWEEP_PERIOD as PERIOD, SWEEP_SPEED as SPEED, swept_pair
 
-    flow_node = FlowNode(argv=["--ros-args", "-p", "report_period_s:=60.0", "-p", "twist_topic:=/vehicle/twist",
-                               "-p", "mount:=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]"])
-    flow_node.spin_in_thread()
-    probe = Node("probe")
-    received: list = []
-    probe.create_subscription("sensor_msgs/msg/PointCloud2", "/ssf/flow", received.append)
-    probe.spin_in_thread()
-    scans = probe.create_publisher("sensor_msgs/msg/PointCloud2", "/lidar/points", QOS_SENSOR_DATA)
-    twists = probe.create_publisher("geometry_msgs/msg/TwistStamped", "/vehicle/twist")
-    try:
-        assert wait_until(lambda: scans.get_subscription_count() > 0 and twists.get_subscription_count() > 0)
+    with flow_graph("twist_topic:=/vehicle/twist", "mount:=[0.0, 0.0, 0.0, 0.0, 0.0, 0.0]") as (
+            flow_node, probe, scans, _hints, received):
+        twists = probe.create_publisher("geometry_msgs/msg/TwistStamped", "/vehicle/twist")
+        assert wait_until(lambda: twists.get_subscription_count() > 0)
         (pc1, time1), (pc2, time2) = swept_pair(0)
         scans.publish(xyz_to_cloud(pc1, messages.header(1_000_000_000, "lidar"), time=time1))
         if measured:  # the vehicle's bus: speed along x, no turn, over the step ending at scan t+1's stamp
@@ -173,8 +177,3 @@ def test_sweeps_deskewed_by_the_vehicles_measured_motion(measured):
         assert np.median(np.linalg.norm(flow - [-SPEED * PERIOD, 0.0, 0.0], axis=1)) < 0.02
         assert flow_node.estimator.estimated_again == (0 if measured else 1)
         assert flow_node.stats.counts["sweeps_without_measured_motion"] == (0 if measured else 1)
-    finally:
-        flow_node.request_shutdown()
-        flow_node.on_shutdown()
-        flow_node.destroy_node()
-        probe.destroy_node()

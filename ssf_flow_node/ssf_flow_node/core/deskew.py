@@ -3,10 +3,11 @@ each raw point's flow the ego motion plus its own motion.
 
 1. Deskew: every point of a scan is moved into the sensor frame at the scan's stamp by the ego motion along the ground
    (x, y, yaw) interpolated across its sweep at constant velocity: the sweep's own motion where the vehicle measured
-   it (wheel speed and gyro, `PairTimes.measured`: as IMU or wheel deskewing on a car; the estimator also starts its ego motion from it), else the last pair's ego
-   motion. A scan is deskewed when it first comes, so that scan t+1 of one pair is scan t of the next exactly (the
-   estimator carries its motions across that link), and so is a scan t that comes after pairs a node skipped to keep
-   up; a stream's first pair is taken as it is (or at the measured motion), then deskewed by its own ego motion.
+   it (wheel speed and gyro, `PairTimes.measured`: as IMU or wheel deskewing on a car; the estimator also starts its
+   ego motion from it), else the last pair's ego motion. A scan is deskewed when it first comes, so that scan t+1 of
+   one pair is scan t of the next exactly (the estimator carries its motions across that link), and so is a scan t
+   that comes after pairs a node skipped to keep up; a stream's first pair is taken as it is (or at the measured
+   motion), then deskewed by its own ego motion.
 2. Estimate on the deskewed scans: the ego motion and every cluster's own rigid motion between the two stamps; a
    moving cluster is fitted between two deskewed scans in which the same columns fired at the same times, so its
    motion is its own over one period, whatever it did while the sensor turned. Where the ego motion found is not the
