@@ -9,6 +9,7 @@ import argparse
 import bisect
 import collections
 import io
+import math
 import sys
 import threading
 import time
@@ -30,6 +31,7 @@ from ssf_common.render.frames import header_stamp
 
 SAMPLE_PERIOD_S = 1.0
 WARMUP_S = 5.0  # the first seconds (imports, discovery, the first scans) are not counted
+GRACE_S = 1.0  # the graph runs on this long after the window, so that its last scans can be answered
 
 
 @dataclass
@@ -56,7 +58,7 @@ class GraphBench:
     duration_s: float
     scenario: str
     scans: int
-    cmd_vel_rate_hz: float
+    cmd_vel_rate_hz: float  # as `ros2 topic hz` gives it: one over the mean interval between the window's commands
     latency_p50_ms: float | None
     latency_p95_ms: float | None
     scans_dropped_ratio: float
@@ -70,6 +72,8 @@ class GraphBench:
     odom_error_p50_m: float | None = None  # /odom against the simulator's truth over the first drive: position error
     odom_error_max_m: float | None = None  # (both in the odometry frame, the first /odom's pose as the origin) ...
     odom_heading_error_max_deg: float | None = None  # ... and heading error
+    cmd_vel_commands: int = 0  # commands sent in the window
+    cmd_vel_gap_max_ms: float | None = None  # the longest the car went without a command in the window
 
 
 class Probe:
@@ -260,10 +264,19 @@ def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, fl
                 continue
 
 
-def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
+def command_rate(walls: list[float]) -> tuple[float, float | None]:
+    """The commands' rate as `ros2 topic hz` gives it (one over the mean interval: a count over a fixed window is a
+    command more or less by the phase of its ends) and their longest interval (ms); 0 and None under two commands."""
+    if len(walls) < 2:
+        return 0.0, None
+    walls = sorted(walls)
+    return (len(walls) - 1) / (walls[-1] - walls[0]), float(np.diff(walls).max() * 1e3)
+
+
+def latencies_ms(probe: Probe, since: float, until: float = math.inf) -> tuple[list[float], set[tuple[int, float]]]:
     """Scan stamp -> the /cmd_vel that answers it: each command answers the scan of the perception answer that came
     last before it (/odom of the scan, or the obstacles of the pair that ends with it), the first command after it;
-    the scan's time is when /clock showed that stamp."""
+    the scan's time is when /clock showed that stamp, between since and until (its answer may come after)."""
     answered: set[tuple[int, float]] = set()  # (stamp, when /clock showed it): stamps repeat when drives restart
     latency: list[float] = []
     answers = sorted(probe.answers)
@@ -275,7 +288,7 @@ def latencies_ms(probe: Probe, since: float) -> tuple[list[float], set[int]]:
             continue
         arrived, stamp = answers[index]
         shown = probe.shown_at(stamp, arrived)
-        if shown is None or (stamp, shown) in answered:
+        if shown is None or not since <= shown <= until or (stamp, shown) in answered:
             continue
         answered.add((stamp, shown))
         latency.append((wall - shown) * 1e3)
@@ -344,28 +357,30 @@ def run_bench_graph(duration_s: float, scenario: str = "urban_200", log: Any = N
     try:
         launcher.start()
         sampler.start()
-        deadline = started + WARMUP_S + duration_s
-        while time.monotonic() < deadline:
+        window_start, window_end = started + WARMUP_S, started + WARMUP_S + duration_s
+        while time.monotonic() < window_end + GRACE_S:
             if not launcher.poll():
+                window_end = min(window_end, time.monotonic())
                 break
-            time.sleep(0.2)
+            time.sleep(0.05)
     finally:
         stop.set()
         launcher.stop()
         probe.close()
-    window_start = started + WARMUP_S
-    measured = max(min(time.monotonic(), started + WARMUP_S + duration_s) - window_start, 1e-9)
+    measured = max(window_end - window_start, 1e-9)  # scans and commands counted in one window
     with probe.lock:
-        scans = [(stamp, probe.shown_at(stamp, wall + 0.5)) for wall, stamp in probe.scans if wall >= window_start]
-        commands = [wall for wall in probe.commands if wall >= window_start]
-        latency, answered = latencies_ms(probe, window_start)
+        scans = [(stamp, probe.shown_at(stamp, wall + 0.5)) for wall, stamp in probe.scans
+                 if window_start <= wall < window_end]
+        commands = [wall for wall in probe.commands if window_start <= wall < window_end]
+        latency, answered = latencies_ms(probe, window_start, window_end)
         ended = collections.Counter(outcome for outcome, _ in probe.ended)
         driven_s, distance = (float(sum(column)) for column in zip((0.0, 0.0), *probe.driven))
         odometry = odometry_error(list(probe.odometry_poses), dict(probe.truth_poses))
     answered_scans = len(answered & set(scans))
+    rate, gap = command_rate(commands)
     return GraphBench(
         duration_s=round(measured, 2), scenario=scenario, scans=len(scans),
-        cmd_vel_rate_hz=len(commands) / measured,
+        cmd_vel_rate_hz=rate, cmd_vel_commands=len(commands), cmd_vel_gap_max_ms=gap,
         latency_p50_ms=float(np.percentile(latency, 50)) if latency else None,
         latency_p95_ms=float(np.percentile(latency, 95)) if latency else None,
         scans_dropped_ratio=1.0 - answered_scans / len(scans) if scans else 1.0,
@@ -383,7 +398,8 @@ def format_bench(bench: GraphBench) -> str:
     p50 = f"{bench.latency_p50_ms:.0f}" if bench.latency_p50_ms is not None else "-"
     p95 = f"{bench.latency_p95_ms:.0f}" if bench.latency_p95_ms is not None else "-"
     lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
-             f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %",
+             f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %"
+             + ("" if bench.cmd_vel_gap_max_ms is None else f", commands at most {bench.cmd_vel_gap_max_ms:.0f} ms apart"),
              f"the ego drove {bench.distance_m:.0f} m at {bench.average_speed_mps:.1f} m/s on average" + (
                  "" if bench.odom_error_max_m is None else f"; /odom against the truth (first drive): "
                  f"{bench.odom_error_p50_m:.2f} m median, {bench.odom_error_max_m:.2f} m and "

@@ -4,8 +4,9 @@ One plan per scan (the simulator's 10 Hz), as soon as its first answer comes: th
 with it (the fusion node sends them before the odometry has the scan's pose), moved into the odometry frame by the pose
 at their stamp, and the scan's pose from the odometry of the one before and the flow's ego motion over the pair (or the
 newest odometry), carried forward to now by the commands sent since (`plan_on: odometry`: one plan per odometry). While
-the clock runs, two control periods without a plan plan again from the newest inputs, so a scan the chain drops does
-not leave the car without a command. The fail safe (the core's
+the clock runs, a control period and a half without a command sends the last plan's control for now (nothing new came
+to plan on; from the newest inputs if something did), so a scan the chain drops or answers late does not cost the car a
+command. The fail safe (the core's
 `failsafe`): when odometry or obstacles are older than two sensor periods by the node's clock, or silent for
 `failsafe.silent_after_s` by the steady clock, every tick and a watchdog on both clocks brake, each command slower than
 the last, down to zero, said on /ssf/planner_state (reason stale_odometry, stale_obstacles, deadline, ...) and in one
@@ -266,7 +267,10 @@ class PlannerNode(Node):
         if self.marker_pub.get_subscription_count():  # markers are for people watching: none are built for nobody
             self.marker_pub.publish(self.markers.plan(step.plan))
         self._publish_state(stamp_ns, step)
-        self.stats.record(step.solve_ms, "ticks")
+        if step.status is TickStatus.HELD:
+            self.stats.count("held")
+        else:
+            self.stats.record(step.solve_ms, "ticks")
 
     def _now(self, state: VehicleState) -> VehicleState:
         """The odometry's state carried forward to now by the commands sent since its stamp: the perception chain's
@@ -376,8 +380,8 @@ class PlannerNode(Node):
         clock does: standing still in lockstep or with a dead simulator, gone back): while an input is stale, the next
         braking command. The steady watchdog judges by the node's clock only while it runs with the steady one (in
         lockstep a brake would release a step and age the inputs itself); else it brakes for silent inputs alone.
-        While the clock runs and the inputs are fresh, two control periods of steady time with no command plan again
-        (a scan the chain dropped; in lockstep the clock waits for the command instead)."""
+        While the clock runs and the inputs are fresh, a control period and a half of steady time with no command
+        holds the plan (a scan the chain dropped or answers late; in lockstep the clock waits for the command)."""
         if self.odometry is None:  # nothing commanded yet: the car stands, or its own timeout stops it
             return
         clock_ns, steady_ns = self._clocks()
@@ -386,15 +390,26 @@ class PlannerNode(Node):
         if stale and self.inputs.brake_due(clock_ns, steady_ns):
             self._publish_step(self._blind_brake(self.odometry, stale), clock_ns)
         elif not stale and steady and running and self._command_overdue(clock_ns, steady_ns):
-            self._tick(self.odometry)
+            self._hold()
 
     def _command_overdue(self, clock_ns: int, steady_ns: int) -> bool:
-        """Whether two control periods of steady time went by since the last command (one between scans' answers is
-        their jitter) while the clock went on by more than one (in lockstep it goes on one step per command), with
-        odometry on the clock's time line (to be carried forward by it)."""
-        period_ns = self.config.control_period * 1e9
-        return (self.sent_steady_ns is not None and steady_ns - self.sent_steady_ns >= 2 * period_ns
-                and clock_ns - self.sent[-1][0] >= 1.5 * period_ns and self._on_timeline(self.odometry.stamp_ns))
+        """Whether a control period and a half of steady time went by since the last command (the next scan's answer
+        is due within one, give or take the chain's jitter) while the clock went on by as much (in lockstep it goes on
+        one step per command), with odometry on the clock's time line (to be carried forward by it)."""
+        overdue_ns = 1.5 * self.config.control_period * 1e9
+        return (self.sent_steady_ns is not None and steady_ns - self.sent_steady_ns >= overdue_ns
+                and clock_ns - self.sent[-1][0] >= overdue_ns and self._on_timeline(self.odometry.stamp_ns))
+
+    def _hold(self) -> None:
+        """A command without a new answer: the last plan's control for now where nothing came since it was made (a
+        solve would find it again, for a fraction of the CPU the chain needs for the next scan), else a plan from the
+        newest inputs."""
+        newest = max(self.odometry.stamp_ns, self.obstacles.stamp_ns if self.obstacles is not None else -1)
+        held = self.planner.hold(self._now(state_of(self.odometry))) if newest <= self.planned_ns else None
+        if held is None:
+            self._tick(self.odometry)
+        else:
+            self._publish_step(held, self.planned_ns)
 
     def _publish(self, command: Command) -> None:
         self.last_command = command

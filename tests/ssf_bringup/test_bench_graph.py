@@ -7,7 +7,8 @@ import threading
 import numpy as np
 import pytest
 
-from ssf_bringup.bench_graph import GraphBench, Probe, bench_graph_spec, format_bench, latencies_ms, node_rows
+from ssf_bringup.bench_graph import (GraphBench, Probe, bench_graph_spec, command_rate, format_bench, latencies_ms,
+                                     node_rows)
 from ssf_common import messages
 from ssf_common.conversions import ego_motion_to_msg, obstacles_to_msg
 from ssf_common.diagnostics import StageStats, read_status
@@ -40,7 +41,19 @@ def test_latency_is_measured_from_the_scans_clock_time_to_the_answering_command(
     latency, answered = latencies_ms(ScriptedProbe(), since=0.0)
     assert answered == {(100, 10.0), (300, 10.2)}
     assert latency == pytest.approx([270.0, 300.0])
-    assert latencies_ms(ScriptedProbe(), since=10.4)[1] == {(300, 10.2)}  # the warm-up is left out
+    assert latencies_ms(ScriptedProbe(), since=10.1)[1] == {(300, 10.2)}  # the warm-up is left out
+    assert latencies_ms(ScriptedProbe(), since=0.0, until=10.1)[1] == {(100, 10.0)}  # scans shown after the window too
+
+
+def test_the_command_rate_is_one_over_the_mean_interval_whatever_the_windows_phase():
+    """600 commands 0.1 s apart are 10 Hz (`ros2 topic hz`), not 9.98 because the window's ends cut one off; the
+    longest interval is the longest the car went without a command."""
+    steady = list(10.03 + 0.1 * np.arange(600))
+    assert command_rate(steady)[0] == pytest.approx(10.0)
+    late = steady[:300] + [wall + 0.06 for wall in steady[300:301]] + steady[302:]  # one answer late, the next dropped
+    rate, gap = command_rate(late)
+    assert rate == pytest.approx(598 / 59.9) and gap == pytest.approx(160.0)
+    assert command_rate([1.0]) == (0.0, None)
 
 
 def test_a_command_answers_the_scan_whose_obstacles_came_before_it_though_its_odometry_came_after():

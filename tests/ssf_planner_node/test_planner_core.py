@@ -427,3 +427,25 @@ def test_the_headway_band_leaves_people_beside_the_path_their_headway():
     person = hyperplanes(ego_xy, yaw, speed, 4.69, 1.85, box, 1, band=0.5, lanes_kept=np.array([False]))
     unbanded = hyperplanes(ego_xy, yaw, speed, 4.69, 1.85, box, 1)
     assert car.closing[0, 0] == 0.0 and person.closing[0, 0] == unbanded.closing[0, 0] > 4.0
+
+
+def test_holding_the_plan_commands_its_control_for_now_without_solving_and_only_a_solved_plan_is_held():
+    """Between perception answers `hold` sends the last solved plan's control for now (its step 1 after one horizon
+    step), not counted as a fallback; there is nothing to hold before a plan, after a brake, or near the plan's end."""
+    planner = planner_for([[0, 0], [400, 0]])
+    start = VehicleState(0, 0.0, 0.0, 0.0, 5.0)
+    assert planner.hold(start) is None  # no plan yet
+    solved = planner.step(start)
+    assert solved.status is TickStatus.SOLVED
+    later = int(planner.config.dt * 1e9)
+    states, controls = solved.plan.states, solved.plan.controls
+    held = planner.hold(VehicleState(later, *states[1]))
+    assert held is not None and held.status is TickStatus.HELD and held.rounds == 0
+    np.testing.assert_allclose(held.plan.controls[:-1], controls[1:])  # the same plan, one step on
+    np.testing.assert_allclose(held.plan.states[:-1, :2], states[1:, :2], atol=1e-9)
+    assert held.command.linear == pytest.approx(states[1, 3] + controls[1, 0] * planner.config.control_period)
+    assert planner.stats.fallbacks == 0 and planner.stats.ticks[TickStatus.HELD] == 1 and planner.last_command == held.command
+    ending = int((planner.config.horizon * planner.config.dt - 0.5 * planner.config.control_period) * 1e9)
+    assert planner.hold(VehicleState(ending, *states[-1])) is None  # the plan ends within the next period
+    planner.blind_brake(VehicleState(later, *states[1]), "test")
+    assert planner.hold(VehicleState(later, *states[1])) is None  # braking: no plan to hold

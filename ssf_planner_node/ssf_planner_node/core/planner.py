@@ -75,6 +75,7 @@ class TickStatus(str, Enum):
 
     SOLVED = "solved"  # the MPC's own plan
     SHIFTED = "shifted"  # fallback: the previous plan shifted to now
+    HELD = "held"  # between perception answers: the last plan's control for now (nothing new to plan on)
     BRAKE = "brake"  # fallback: full braking
     NO_ROUTE = "no_route"  # nothing to follow: standing still
 
@@ -119,6 +120,7 @@ class _Memory:
     stamp_ns: int
     states: np.ndarray
     controls: np.ndarray
+    clearance: float
 
 
 class RdaPlanner:
@@ -149,8 +151,7 @@ class RdaPlanner:
         cfg = self.config
         if self.route is None:
             return self._finish(self._brake(state, Reason.NO_ROUTE.because(), status=TickStatus.NO_ROUTE), started)
-        done = self.route.remaining(state.vector[:2]) <= 0.0 or \
-            np.linalg.norm(state.vector[:2] - self.route.goal) <= cfg.goal_tolerance and state.speed < 0.5
+        done = self._done(state)
         obstacles = obstacles if obstacles is not None else Obstacles.empty(state.stamp_ns, self.route.frame_id)
         obstacles, dropped = avoidance.nearest_first(obstacles, state.vector[:2], cfg.obstacles.max_considered)
         # 1. warm start: the previous plan shifted to now (or coasting), and the reference along it
@@ -206,7 +207,7 @@ class RdaPlanner:
             return self._finish(self._fallback(state, corners, Reason.PLAN_COLLIDES.because(f"{clearance:.2f} m")),
                                 started, **answered)
         nominal, controls, clearance = clear
-        self._memory = _Memory(state.stamp_ns, nominal, controls)
+        self._memory = _Memory(state.stamp_ns, nominal, controls, clearance)
         command = command_of(cfg, state.vector, controls[0])
         if done:
             command = Command(0.0, 0.0)
@@ -214,6 +215,29 @@ class RdaPlanner:
         step = PlanStep(command, self._plan(state, nominal, controls), TickStatus.SOLVED, "", 0.0, rounds,
                         len(chosen), clearance, done, dropped)
         return self._finish(step, started)
+
+    def hold(self, state: VehicleState) -> PlanStep | None:
+        """A tick with nothing new to plan on (no perception answer since the last plan): that plan's control for now,
+        as a solve on the same inputs would find again; None where there is no solved plan to hold, the goal is
+        reached, or the plan ends within the next control period (then `step`)."""
+        started = time.perf_counter()
+        cfg, memory = self.config, self._memory
+        if memory is None or self.route is None or self._done(state):
+            return None
+        elapsed = (state.stamp_ns - memory.stamp_ns) * 1e-9
+        if not 0.0 <= elapsed < cfg.horizon * cfg.dt - cfg.control_period:
+            return None
+        controls = self._warm_controls(state)
+        states = rollout(self._trajectory, state.vector, controls)
+        self._applied = controls[0].copy()
+        step = PlanStep(command_of(cfg, state.vector, controls[0]), self._plan(state, states, controls),
+                        TickStatus.HELD, "", 0.0, 0, 0, memory.clearance, False)
+        return self._finish(step, started)
+
+    def _done(self, state: VehicleState) -> bool:
+        """Whether the goal is reached: the route behind the car, or the car standing at its goal."""
+        return self.route.remaining(state.vector[:2]) <= 0.0 or \
+            np.linalg.norm(state.vector[:2] - self.route.goal) <= self.config.goal_tolerance and state.speed < 0.5
 
     def blind_brake(self, state: VehicleState, reason: str, count: bool = True) -> PlanStep:
         """A tick that cannot plan (an input stale, the deadline missed): brake on the arc of the last command, from
