@@ -74,6 +74,7 @@ class GraphBench:
     odom_heading_error_max_deg: float | None = None  # ... and heading error
     cmd_vel_commands: int = 0  # commands sent in the window
     cmd_vel_gap_max_ms: float | None = None  # the longest the car went without a command in the window
+    scan_rate_hz: float = 0.0  # the scans' own rate over the window, as cmd_vel_rate_hz (what the commands answer)
 
 
 class Probe:
@@ -264,9 +265,9 @@ def sample_processes(launcher: Launcher, samples: dict[str, list[tuple[float, fl
                 continue
 
 
-def command_rate(walls: list[float]) -> tuple[float, float | None]:
-    """The commands' rate as `ros2 topic hz` gives it (one over the mean interval: a count over a fixed window is a
-    command more or less by the phase of its ends) and their longest interval (ms); 0 and None under two commands."""
+def arrival_rate(walls: list[float]) -> tuple[float, float | None]:
+    """A topic's rate as `ros2 topic hz` gives it (one over the mean interval: a count over a fixed window is a message
+    more or less by the phase of its ends) and the longest interval (ms); 0 and None under two messages."""
     if len(walls) < 2:
         return 0.0, None
     walls = sorted(walls)
@@ -369,18 +370,19 @@ def run_bench_graph(duration_s: float, scenario: str = "urban_200", log: Any = N
         probe.close()
     measured = max(window_end - window_start, 1e-9)  # scans and commands counted in one window
     with probe.lock:
-        scans = [(stamp, probe.shown_at(stamp, wall + 0.5)) for wall, stamp in probe.scans
-                 if window_start <= wall < window_end]
+        arrivals = [(wall, stamp) for wall, stamp in probe.scans if window_start <= wall < window_end]
+        scans = [(stamp, probe.shown_at(stamp, wall + 0.5)) for wall, stamp in arrivals]
         commands = [wall for wall in probe.commands if window_start <= wall < window_end]
         latency, answered = latencies_ms(probe, window_start, window_end)
         ended = collections.Counter(outcome for outcome, _ in probe.ended)
         driven_s, distance = (float(sum(column)) for column in zip((0.0, 0.0), *probe.driven))
         odometry = odometry_error(list(probe.odometry_poses), dict(probe.truth_poses))
     answered_scans = len(answered & set(scans))
-    rate, gap = command_rate(commands)
+    rate, gap = arrival_rate(commands)
     return GraphBench(
         duration_s=round(measured, 2), scenario=scenario, scans=len(scans),
         cmd_vel_rate_hz=rate, cmd_vel_commands=len(commands), cmd_vel_gap_max_ms=gap,
+        scan_rate_hz=arrival_rate([wall for wall, _ in arrivals])[0],
         latency_p50_ms=float(np.percentile(latency, 50)) if latency else None,
         latency_p95_ms=float(np.percentile(latency, 95)) if latency else None,
         scans_dropped_ratio=1.0 - answered_scans / len(scans) if scans else 1.0,
@@ -397,7 +399,8 @@ def format_bench(bench: GraphBench) -> str:
     """The figures as text: end to end, then per node."""
     p50 = f"{bench.latency_p50_ms:.0f}" if bench.latency_p50_ms is not None else "-"
     p95 = f"{bench.latency_p95_ms:.0f}" if bench.latency_p95_ms is not None else "-"
-    lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans, /cmd_vel {bench.cmd_vel_rate_hz:.1f} Hz, "
+    lines = [f"{bench.scenario}, {bench.duration_s:.0f} s measured: {bench.scans} scans ({bench.scan_rate_hz:.2f} Hz), "
+             f"/cmd_vel {bench.cmd_vel_rate_hz:.2f} Hz, "
              f"scan -> /cmd_vel p50 {p50} ms p95 {p95} ms, scans dropped end to end {100 * bench.scans_dropped_ratio:.1f} %"
              + ("" if bench.cmd_vel_gap_max_ms is None else f", commands at most {bench.cmd_vel_gap_max_ms:.0f} ms apart"),
              f"the ego drove {bench.distance_m:.0f} m at {bench.average_speed_mps:.1f} m/s on average" + (

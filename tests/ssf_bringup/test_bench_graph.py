@@ -7,7 +7,7 @@ import threading
 import numpy as np
 import pytest
 
-from ssf_bringup.bench_graph import (GraphBench, Probe, bench_graph_spec, command_rate, format_bench, latencies_ms,
+from ssf_bringup.bench_graph import (GraphBench, Probe, bench_graph_spec, arrival_rate, format_bench, latencies_ms,
                                      node_rows)
 from ssf_common import messages
 from ssf_common.conversions import ego_motion_to_msg, obstacles_to_msg
@@ -49,11 +49,11 @@ def test_the_command_rate_is_one_over_the_mean_interval_whatever_the_windows_pha
     """600 commands 0.1 s apart are 10 Hz (`ros2 topic hz`), not 9.98 because the window's ends cut one off; the
     longest interval is the longest the car went without a command."""
     steady = list(10.03 + 0.1 * np.arange(600))
-    assert command_rate(steady)[0] == pytest.approx(10.0)
+    assert arrival_rate(steady)[0] == pytest.approx(10.0)
     late = steady[:300] + [wall + 0.06 for wall in steady[300:301]] + steady[302:]  # one answer late, the next dropped
-    rate, gap = command_rate(late)
+    rate, gap = arrival_rate(late)
     assert rate == pytest.approx(598 / 59.9) and gap == pytest.approx(160.0)
-    assert command_rate([1.0]) == (0.0, None)
+    assert arrival_rate([1.0]) == (0.0, None)
 
 
 def test_a_command_answers_the_scan_whose_obstacles_came_before_it_though_its_odometry_came_after():
