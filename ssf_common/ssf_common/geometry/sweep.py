@@ -18,6 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ssf_common.errors import DataError
+from ssf_common.geometry.compiled import posed_points
 from ssf_common.geometry.se3 import interpolate_poses, invert, make_pose, yaw_of
 
 STEPS = 4096  # shares of a period between the poses the points take: at 10 Hz and 30 m/s, 0.4 mm apart at most
@@ -81,19 +82,17 @@ def planar(motion: np.ndarray) -> np.ndarray:
 
 def _move(points: np.ndarray, time: np.ndarray, motion: np.ndarray, period: float, back: bool) -> np.ndarray:
     """Each point through motion^(-time / period), or its inverse (`back`); poses taken at STEPS shares a period."""
-    points = np.asarray(points, dtype=np.float64)[:, :3]
+    points = np.asarray(points)[:, :3]
+    if points.dtype not in (np.float32, np.float64):
+        points = points.astype(np.float64)
     if period <= 0 or not np.isfinite(period):
         raise DataError(f"a sweep's period must be a positive number of seconds, got {period}")
     steps = np.rint(-check_time(time, len(points), "sweep") / period * STEPS).astype(np.int64)
     if not len(points) or not steps.any():
         return points.astype(np.float32)
     low = int(steps.min())
-    pose = _pose_table(np.asarray(motion, dtype=np.float64).tobytes(), low, int(steps.max()), back)[steps - low]
-    x, y, z = points[:, 0], points[:, 1], points[:, 2]
-    moved = np.empty_like(points)
-    for row in range(3):  # a 3x4 pose per point, row by row: no (N, 4, 4) gather
-        moved[:, row] = pose[:, 4 * row] * x + pose[:, 4 * row + 1] * y + pose[:, 4 * row + 2] * z + pose[:, 4 * row + 3]
-    return moved.astype(np.float32)
+    table = _pose_table(np.asarray(motion, dtype=np.float64).tobytes(), low, int(steps.max()), back)
+    return posed_points(np.ascontiguousarray(points), steps, low, table)  # a 3x4 pose per point, in float64
 
 
 @functools.lru_cache(maxsize=8)
