@@ -221,18 +221,22 @@ class RdaPlanner:
         as a solve on the same inputs would find again; None where there is no solved plan to hold, the goal is
         reached, or the plan ends within the next control period (then `step`)."""
         started = time.perf_counter()
+        if not self._plan_lasts(state) or self.route is None or self._done(state):
+            return None
         cfg, memory = self.config, self._memory
-        if memory is None or self.route is None or self._done(state):
-            return None
-        elapsed = (state.stamp_ns - memory.stamp_ns) * 1e-9
-        if not 0.0 <= elapsed < cfg.horizon * cfg.dt - cfg.control_period:
-            return None
         controls = self._warm_controls(state)
         states = rollout(self._trajectory, state.vector, controls)
         self._applied = controls[0].copy()
         step = PlanStep(command_of(cfg, state.vector, controls[0]), self._plan(state, states, controls),
                         TickStatus.HELD, "", 0.0, 0, 0, memory.clearance, False)
         return self._finish(step, started)
+
+    def _plan_lasts(self, state: VehicleState) -> bool:
+        """Whether the last solved plan reaches at least a control period past `state`'s time (it can be followed)."""
+        if self._memory is None:
+            return False
+        elapsed = (state.stamp_ns - self._memory.stamp_ns) * 1e-9
+        return 0.0 <= elapsed < self.config.horizon * self.config.dt - self.config.control_period
 
     def _done(self, state: VehicleState) -> bool:
         """Whether the goal is reached: the route behind the car, or the car standing at its goal."""
@@ -342,18 +346,15 @@ class RdaPlanner:
 
     def _fallback(self, state: VehicleState, corners: np.ndarray, reason: str) -> PlanStep:
         """The previous plan shifted to now while it stays clear of the obstacles; else brake."""
-        memory = self._memory
-        if memory is not None:
-            elapsed = (state.stamp_ns - memory.stamp_ns) * 1e-9
-            if 0.0 <= elapsed < self.config.horizon * self.config.dt - self.config.control_period:
-                controls = self._warm_controls(state)
-                states = rollout(self._trajectory, state.vector, controls)
-                clearance, intrusion = self._clearance(states, corners)
-                if intrusion >= 0.0 and self._next_tick_margin(state, controls, corners) >= 0.0:
-                    command = command_of(self.config, state.vector, controls[0])
-                    self._applied = controls[0].copy()
-                    return PlanStep(command, self._plan(state, states, controls), TickStatus.SHIFTED, reason, 0.0, 0,
-                                    corners.shape[1], clearance, False)
+        if self._plan_lasts(state):
+            controls = self._warm_controls(state)
+            states = rollout(self._trajectory, state.vector, controls)
+            clearance, intrusion = self._clearance(states, corners)
+            if intrusion >= 0.0 and self._next_tick_margin(state, controls, corners) >= 0.0:
+                command = command_of(self.config, state.vector, controls[0])
+                self._applied = controls[0].copy()
+                return PlanStep(command, self._plan(state, states, controls), TickStatus.SHIFTED, reason, 0.0, 0,
+                                corners.shape[1], clearance, False)
         return self._brake(state, reason, corners)
 
     def _brake(self, state: VehicleState, reason: str, corners: np.ndarray | None = None,
