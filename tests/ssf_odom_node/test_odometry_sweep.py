@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from ssf_common.geometry.se3 import interpolate_poses, invert, make_pose, transform_points
-from ssf_odom_node.core.odometry import OdomConfig, OdomInput, make_odometry
+from ssf_odom_node.core.odometry import OdomConfig, OdomInput, Odometry, centred_mean, make_odometry
 
 PERIOD = 0.1
 STEP_NS = 100_000_000
@@ -107,3 +107,49 @@ def test_where_the_flow_contradicts_constant_velocity_its_search_registers_the_s
                                                turned, by_velocity)
             assert found is not None and np.abs(found.scan - transform_points(invert(poses[3]), world)).max() < 0.02
         odometry.step(frame)
+
+
+def test_three_smooth_pair_motions_are_averaged_and_a_sudden_turn_keeps_the_sweeps_own():
+    steady = np.array([[1.00, 0.0, 0.0], [1.02, 0.0, 0.0], [1.04, 0.0, 0.0]])  # constant acceleration
+    np.testing.assert_allclose(centred_mean(steady, (0.1, 0.005)), make_pose(1.02, 0.0, 0.0, 0.0), atol=1e-12)
+    noisy = steady + np.array([[0.004, 0.0, 0.0005], [-0.006, 0.001, -0.001], [0.002, 0.0, 0.0005]])
+    np.testing.assert_allclose(centred_mean(noisy, (0.1, 0.005)), make_pose(1.02, 1 / 3000, 0.0, 0.0), atol=1e-12)
+    turning = steady + np.array([[0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.01, -0.05]])  # a turn begins at the stamp
+    np.testing.assert_allclose(centred_mean(turning, (0.1, 0.005)), make_pose(1.02, 0.0, 0.0, 0.0), atol=1e-12)
+
+
+def noisy_drive(config: OdomConfig, errors: np.ndarray,
+                gap_at: int | None = None) -> tuple[list, list[np.ndarray], Odometry]:
+    """Steps of ssf odometry along a flat street at constant speed whose flow's ego motion of each pair is off along x
+    by `errors` (m), as a deskew by a noisy wheel odometer leaves it: each error also in the next pair, the other way;
+    and the true poses. `gap_at`: that scan comes a period late (one skipped)."""
+    world = static_street()
+    stamps = [index + (index >= gap_at if gap_at is not None else 0) for index in range(len(errors) + 2)]
+    poses = [make_pose(SPEED_STEP * stamp, 0.0, 0.0) for stamp in stamps]
+    odometry, steps = make_odometry("ssf", config), []
+    for index in range(1, len(poses) - 1):
+        points, time = swept(world, make_pose(poses[index][0, 3] - SPEED_STEP, 0.0, 0.0), poses[index])
+        ego = make_pose(errors[index - 1], 0.0, 0.0) @ invert(poses[index + 1]) @ poses[index]
+        flow = transform_points(ego, points) - points
+        steps.append(odometry.step(OdomInput(stamps[index] * STEP_NS, points, flow, np.zeros(len(points), np.float32),
+                                             ego=ego, time=time)))
+    return steps, [invert(poses[1]) @ pose for pose in poses[1:-1]], odometry
+
+
+def test_the_mean_of_three_pairs_motions_deskews_a_sweep_closer_than_its_own_noisy_motion():
+    noise = np.array([0.0, 0.01, -0.01, 0.01, -0.01, 0.01, -0.01, 0.01, 0.0])
+    errors = noise[1:] - noise[:-1]  # a pair's error is its two sweeps' deskew errors apart: neighbours cancel
+    off = [np.abs(step.pose[:3, 3] - pose[:3, 3]).max()
+           for step, pose in zip(*noisy_drive(OdomConfig(near_range=0.0, sweep_mean=False), errors)[:2])]
+    on = [np.abs(step.pose[:3, 3] - pose[:3, 3]).max()
+          for step, pose in zip(*noisy_drive(OdomConfig(near_range=0.0), errors)[:2])]
+    assert max(off[2:]) > 0.01  # each sweep's own motion is 2 cm off: its points up to 2 cm apart along the street
+    assert np.sqrt(np.mean(np.square(on[2:]))) < 0.6 * np.sqrt(np.mean(np.square(off[2:])))  # the mean: 7 mm off
+
+
+def test_pair_motions_across_skipped_scans_are_not_averaged():
+    errors = np.zeros(5)
+    _, _, odometry = noisy_drive(OdomConfig(near_range=0.0), errors, gap_at=4)  # scans 4 on came a period late
+    assert len(odometry.pair_motions) == 2  # scan 4 came after a gap: its pair and scan 5's kept since
+    _, _, odometry = noisy_drive(OdomConfig(near_range=0.0), errors[:4], gap_at=4)
+    assert len(odometry.pair_motions) == 1  # only the pair that starts after the gap: the next sweep is not averaged

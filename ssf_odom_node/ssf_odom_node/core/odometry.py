@@ -5,6 +5,7 @@ vehicle's own measured motion (wheel speed, gyro), where given, checks the flow'
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import NamedTuple
@@ -16,7 +17,8 @@ from ssf_common.config import Section
 from ssf_common.errors import ConfigError, DataError
 from ssf_common.geometry.neighbours import PointIndex
 from ssf_common.geometry.sampling import voxel_indices
-from ssf_common.geometry.se3 import interpolate_poses, invert, rotation_angle, transform_points, yaw_matrix
+from ssf_common.geometry.se3 import (interpolate_poses, invert, make_pose, rotation_angle, transform_points, yaw_matrix,
+                                     yaw_of)
 from ssf_common.geometry.sweep import check_time, deskew, planar, timed
 from ssf_common.geometry.registration import (Alignment, estimate_normals, exp_se3, flow_transform, log_se3,
                                              normals_among, point_to_plane, steep_support)
@@ -96,6 +98,16 @@ class OdomConfig(Section):
                          "with; on the first scan the flow's motion to the next), and fit the sensor's vertical motion "
                          "over the sweep with the pose (sweep_gates), so that the pose is the one at the stamp; scans "
                          "without time, or all of it zero, are taken as given")
+    sweep_mean: bool = Field(True, description="deskewed scans: the sweep's motion along the ground is the mean of the "
+                             "flow's ego motions of three consecutive pairs (the pair before the sweep's, the sweep's "
+                             "own, and this scan's to the next), centred on the sweep: each pair's ego motion is a few mm "
+                             "off and its neighbours' errors mostly cancel it (at constant acceleration the mean is the "
+                             "middle one); where the three do not change smoothly (sweep_jump) the sweep's own")
+    sweep_jump: tuple[float, float] = Field((0.1, 0.005), description="the three pairs' motions are averaged only where "
+                                            "their second difference stays within this (m, rad): beyond it the motion "
+                                            "changed at once (a turn begins: the simulator's car can take 0.05 rad a "
+                                            "period from one period to the next; a crash stops it), and a mean would "
+                                            "deskew two sweeps with a turn one of them did not take")
     sweep_gates: tuple[float, ...] = Field((0.3, 0.3), description="deskewed scans: gates (m) of the last "
                                            "point-to-plane iterations, which fit the sensor's rise or fall over the "
                                            "sweep with the pose (a bump of the road moves it within a period, which "
@@ -167,10 +179,13 @@ class Odometry:
         self.stamp_ns: int | None = None
         self.steps = 0
         self.rejected_flows = 0  # flow motions that constant velocity or the motion prior overruled
+        self.pair_motions: deque[np.ndarray] = deque(maxlen=2)  # the flow's ego motions (x, y, yaw) of the last two
+        # consecutive pairs, the older first: the sweeps' motions are averaged with them (sweep_mean)
 
     def step(self, frame: OdomInput) -> OdomStep:
         """One scan: predict its pose, refine it on the static map, chain it, map it, and predict the next motion."""
         raw, flow, dynamic = self.check(frame)
+        gap = self.periods(frame.stamp_ns) >= GAP_PERIODS
         # 1. predict: the motion the last scan's static flow gave, and constant velocity; the scan at its stamp, and
         # 2. the points this method registers and maps of it: the static ones (ssf) or all
         by_flow, by_velocity = self.predict(frame.stamp_ns)
@@ -191,6 +206,7 @@ class Odometry:
         # 4. chain into the pose, its covariance and the velocity
         self.chain(frame.stamp_ns, alignment)
         # 5. the motion to the next scan: the flow estimator's ego motion (else from the static points and their flow)
+        self.remember_pair_motion(self.given_ego(frame), gap)
         self.next_motion = self.flow_motion(scan.points, scan.flow, scan.dynamic, self.given_ego(frame))
         # 6. the registered points join the map at the new pose (for ssf: where the segmentation sees, points that do
         # not move on their own, not where it saw moving points lately, and the scan's beams clear what they pass
@@ -212,10 +228,29 @@ class Odometry:
         if not self.config.deskew or not timed(frame.time):
             return None
         if self.stamp_ns is not None:
-            return self.period_motion(predicted, frame.stamp_ns)
+            centred = self.centred_motion(frame)
+            return self.period_motion(predicted, frame.stamp_ns) if centred is None else centred
         motion = self.flow_motion(np.asarray(scan, np.float64), None if flow is None else flow.astype(np.float64),
                                   None if dynamic is None else dynamic.astype(np.float64), self.given_ego(frame))
         return None if motion is None else planar(motion)
+
+    def centred_motion(self, frame: OdomInput) -> np.ndarray | None:
+        """ssf: the sweep's motion along the ground as the mean of the flow's ego motions of the pair before it, its own
+        and the one after (this scan's to the next), where sweep_mean is on, the three pairs are consecutive periods and
+        the frame carries the flow's ego motion; else None."""
+        ego = self.given_ego(frame)
+        if (not self.config.sweep_mean or self.method is not OdomMethod.SSF or ego is None
+                or len(self.pair_motions) < 2 or self.periods(frame.stamp_ns) >= GAP_PERIODS):
+            return None
+        return centred_mean(np.stack([*self.pair_motions, planar_motion(ego)]), self.config.sweep_jump)
+
+    def remember_pair_motion(self, ego: np.ndarray | None, gap: bool) -> None:
+        """Keep the flow's ego motion of this scan's pair for the next sweeps' means (after skipped scans the earlier
+        pairs are not the next sweeps' neighbours; without an ego motion nothing is averaged until two more came)."""
+        if gap or ego is None:
+            self.pair_motions.clear()
+        if ego is not None:
+            self.pair_motions.append(planar_motion(ego))
 
     def velocity_deskewed(self, raw: np.ndarray, frame: OdomInput, flow: np.ndarray | None,
                           dynamic: np.ndarray | None, motion: np.ndarray | None, by_flow: np.ndarray | None,
@@ -620,6 +655,22 @@ class Odometry:
         if np.count_nonzero(weights > 0) < 3:
             return None
         return flow_transform(points, flow, weights)
+
+
+def planar_motion(motion: np.ndarray) -> np.ndarray:
+    """A motion's part along the ground as (x, y, yaw)."""
+    return np.array([motion[0, 3], motion[1, 3], yaw_of(motion)])
+
+
+def centred_mean(motions: np.ndarray, jump: tuple[float, float]) -> np.ndarray:
+    """The middle of three consecutive periods' motions (3, x y yaw) as a pose along the ground: their mean where their
+    second difference stays within `jump` (m, rad; at constant acceleration the mean is the middle motion, and the
+    neighbours' errors average out), else the middle motion itself (the motion changed at once)."""
+    second = motions[0] - 2.0 * motions[1] + motions[2]
+    second[2] = np.angle(np.exp(1j * second[2]))
+    smooth = np.hypot(second[0], second[1]) <= jump[0] and abs(second[2]) <= jump[1]
+    x, y, yaw = motions.mean(axis=0) if smooth else motions[1]
+    return make_pose(x, y, 0.0, yaw)
 
 
 def lifted(points: np.ndarray, shares: np.ndarray, lift: float) -> np.ndarray:
