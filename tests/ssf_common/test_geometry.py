@@ -18,6 +18,7 @@ from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, gree
                                           voxel_indices, voxel_keys)
 from ssf_common.geometry.se3 import (compose, exp_twists, interpolate_poses, invert, make_pose, relative_pose, rigid_flow,
                                      rotation_angle, transform_points, yaw_of, yaw_translate)
+from ssf_common.geometry.sweep import is_planar, planar_poses
 
 
 def random_transform(rng: np.random.Generator) -> np.ndarray:
@@ -66,6 +67,23 @@ def test_screw_interpolation_follows_an_arc_and_ends_exactly_at_the_end():
         assert rotation_angle(invert(a) @ halfway) == pytest.approx(angle / 2, abs=1e-9)
         np.testing.assert_allclose(interpolate_poses(a, halfway, np.array([2.0]))[0], b, atol=1e-9)
     np.testing.assert_allclose(exp_twists(np.zeros((1, 3)), np.array([[1.0, 2.0, 3.0]]))[0], make_pose(1.0, 2.0, 3.0))
+
+
+@pytest.mark.parametrize("turn", [0.3, -1e-3, 1e-7, 0.0])
+def test_a_motion_along_the_ground_is_interpolated_on_its_arc_in_closed_form(turn):
+    length = 1.2  # a sweep's arc at constant speed and yaw rate, the way a deskew takes it
+    def on_arc(share):
+        if turn == 0.0:
+            return make_pose(share * length, 0.0, 0.0, 0.0)
+        radius = length / turn  # 1 - cos as 2 sin^2 of the half angle: no cancellation on a gentle curve
+        return make_pose(radius * np.sin(share * turn), radius * 2 * np.sin(share * turn / 2) ** 2, 0.0, share * turn)
+    shares = np.arange(-4096, 1) / 4096 + 1.0
+    poses = planar_poses(on_arc(1.0), shares)
+    for index in (0, 1000, 2048, 4096):
+        np.testing.assert_allclose(poses[index], on_arc(shares[index]), atol=1e-12)
+    np.testing.assert_allclose(poses, interpolate_poses(np.eye(4), on_arc(1.0), shares), atol=1e-8)  # its arccos
+    assert is_planar(on_arc(1.0)) and not is_planar(make_pose(1.0, 0.0, 0.01, turn))
+    assert not is_planar(on_arc(1.0) @ exp_twists(np.array([[0.01, 0.0, 0.0]]), np.zeros((1, 3)))[0])  # a roll
 
 
 def test_weighted_kabsch_recovers_a_motion_and_ignores_zero_weights():
