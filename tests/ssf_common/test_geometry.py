@@ -18,7 +18,7 @@ from ssf_common.geometry.sampling import (Sampling, farthest_point_indices, gree
                                           voxel_indices, voxel_keys)
 from ssf_common.geometry.se3 import (compose, exp_twists, interpolate_poses, invert, make_pose, relative_pose, rigid_flow,
                                      rotation_angle, transform_points, yaw_of, yaw_translate)
-from ssf_common.geometry.sweep import is_planar, planar_poses
+from ssf_common.geometry.sweep import arc_poses, is_planar
 
 
 def random_transform(rng: np.random.Generator) -> np.ndarray:
@@ -78,7 +78,7 @@ def test_a_motion_along_the_ground_is_interpolated_on_its_arc_in_closed_form(tur
         radius = length / turn  # 1 - cos as 2 sin^2 of the half angle: no cancellation on a gentle curve
         return make_pose(radius * np.sin(share * turn), radius * 2 * np.sin(share * turn / 2) ** 2, 0.0, share * turn)
     shares = np.arange(-4096, 1) / 4096 + 1.0
-    poses = planar_poses(on_arc(1.0), shares)
+    poses = arc_poses(on_arc(1.0), shares)
     for index in (0, 1000, 2048, 4096):
         np.testing.assert_allclose(poses[index], on_arc(shares[index]), atol=1e-12)
     np.testing.assert_allclose(poses, interpolate_poses(np.eye(4), on_arc(1.0), shares), atol=1e-8)  # its arccos

@@ -101,7 +101,7 @@ def _pose_table(motion: bytes, low: int, high: int, back: bool) -> np.ndarray:
     inverses: one sweep's table serves every scan moved with the same motion (deskewed, then carried back)."""
     motion = np.frombuffer(motion).reshape(4, 4)
     shares = np.arange(low, high + 1) / STEPS
-    poses = planar_poses(motion, shares) if is_planar(motion) else interpolate_poses(np.eye(4), motion, shares)
+    poses = arc_poses(motion, shares) if is_planar(motion) else interpolate_poses(np.eye(4), motion, shares)
     table = (invert(poses) if back else poses)[:, :3, :].reshape(-1, 12).copy()
     table.flags.writeable = False
     return table
@@ -112,7 +112,7 @@ def is_planar(motion: np.ndarray) -> bool:
     return bool(motion[2, 3] == 0.0 and motion[2, 2] == 1.0 and not motion[2, :2].any() and not motion[:2, 2].any())
 
 
-def planar_poses(motion: np.ndarray, shares: np.ndarray) -> np.ndarray:
+def arc_poses(motion: np.ndarray, shares: np.ndarray) -> np.ndarray:
     """Poses (K, 4, 4) at `shares` of a constant-twist motion along the ground from the identity to `motion`: the
     closed form of se3.interpolate_poses for a turn about z (a sweep's 4097 poses in 0.15 ms against 2.2; on the arc
     to 1e-12 m, where interpolate_poses' arccos loses digits on gentle turns). With a turn of angle a, a share s turns

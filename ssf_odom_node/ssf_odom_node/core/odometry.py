@@ -242,7 +242,7 @@ class Odometry:
         if (not self.config.sweep_mean or self.method is not OdomMethod.SSF or ego is None
                 or len(self.pair_motions) < 2 or self.periods(frame.stamp_ns) >= GAP_PERIODS):
             return None
-        return centred_mean(np.stack([*self.pair_motions, planar_motion(ego)]), self.config.sweep_jump)
+        return centred_mean(np.stack([*self.pair_motions, along_ground(ego)]), self.config.sweep_jump)
 
     def remember_pair_motion(self, ego: np.ndarray | None, gap: bool) -> None:
         """Keep the flow's ego motion of this scan's pair for the next sweeps' means (after skipped scans the earlier
@@ -250,7 +250,7 @@ class Odometry:
         if gap or ego is None:
             self.pair_motions.clear()
         if ego is not None:
-            self.pair_motions.append(planar_motion(ego))
+            self.pair_motions.append(along_ground(ego))
 
     def velocity_deskewed(self, raw: np.ndarray, frame: OdomInput, flow: np.ndarray | None,
                           dynamic: np.ndarray | None, motion: np.ndarray | None, by_flow: np.ndarray | None,
@@ -657,7 +657,7 @@ class Odometry:
         return flow_transform(points, flow, weights)
 
 
-def planar_motion(motion: np.ndarray) -> np.ndarray:
+def along_ground(motion: np.ndarray) -> np.ndarray:
     """A motion's part along the ground as (x, y, yaw)."""
     return np.array([motion[0, 3], motion[1, 3], yaw_of(motion)])
 
