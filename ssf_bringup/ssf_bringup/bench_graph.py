@@ -208,7 +208,8 @@ def bench_graph_spec(scenario: str, episodes: int = 1, parameters: dict[str, dic
     for node in graph.nodes:
         if node.executable == "ssf":
             continue
-        if node.executable == "sim_bridge":  # instant sweeps unless told: deskewing costs the flow ~20 ms a scan
+        if node.executable == "sim_bridge":  # instant sweeps unless told, to compare with earlier runs (rolling-shutter
+            # sweeps cost the graph ~11 ms of CPU a scan: docs/realtime.md)
             node = node.model_copy(update={"parameters": {**node.parameters, "scenario": scenario, "mode": mode,
                                                           "driver": "none", "duration_s": 0.0, "episodes": episodes,
                                                           "lidar.rolling_shutter": False}})
