@@ -94,8 +94,9 @@ class OdomConfig(Section):
     scan_period: float = Field(0.1, gt=0.0, description="time between scans (s); the span one flow covers")
     deskew: bool = Field(True, description="where the scan's points carry time (a sweep that takes its period to "
                          "turn), move each into the sensor frame at the stamp before registering and mapping it, at "
-                         "constant velocity along the ground within the sweep (the motion the scan's pose is predicted "
-                         "with; on the first scan the flow's motion to the next), and fit the sensor's vertical motion "
+                         "constant velocity along the ground within the sweep (the mean of three pairs' ego motions "
+                         "around it, sweep_mean, else the motion the scan's pose is predicted with; on the first scan "
+                         "the flow's motion to the next), and fit the sensor's vertical motion "
                          "over the sweep with the pose (sweep_gates), so that the pose is the one at the stamp; scans "
                          "without time, or all of it zero, are taken as given")
     sweep_mean: bool = Field(True, description="deskewed scans: the sweep's motion along the ground is the mean of the "
@@ -222,8 +223,9 @@ class Odometry:
     def sweep_motion(self, scan: np.ndarray, frame: OdomInput, predicted: np.ndarray, flow: np.ndarray | None = None,
                      dynamic: np.ndarray | None = None) -> np.ndarray | None:
         """The sensor's motion along the ground over the scan's sweep (the flow's convention: the stamp's frame -> a
-        period later), at constant velocity: the predicted one, per scan period; on the first scan the flow's motion to
-        the next scan (the one its map is built from). None: nothing to deskew (no time, deskew off, or a first scan
+        period later), at constant velocity: the mean of three pairs' ego motions around the sweep (sweep_mean), else the
+        predicted one, per scan period; on the first scan the flow's motion to the next scan (the one its map is built
+        from). None: nothing to deskew (no time, deskew off, or a first scan
         without flow)."""
         if not self.config.deskew or not timed(frame.time):
             return None
